@@ -1,0 +1,63 @@
+"""olsbayes: Bayesian analysis of optics-less smart (OLS) radiation sensors.
+
+Eq. 1 of Caulfield, Yaroslavsky et al. -- ``s[n] = sum_k I[k] costn(theta[k] -
+theta_sensor[n]) + noise`` -- for rings, spheres, plates and any measured array;
+maximum-likelihood fits, posteriors, evidence for the number of sources, imaging
+and Monte Carlo studies, all judged against the Cramér–Rao lower bound.
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+from .crlb import CRLBResult, crlb, crlb_eq3, crlb_eq4
+from .errors import (
+    ConfigError,
+    ConvergenceWarning,
+    EvidenceWarning,
+    InputError,
+    KinkWarning,
+    NullSpaceWarning,
+    OlsBayesError,
+    OlsBayesWarning,
+    ResolutionWarning,
+)
+from .geometry import Plate, Ring, SensorArray, Sphere, wrap_angle
+from .model import Model
+from .scene import Scene
+from .sensitivity import Cosine, CosinePower, CustomSensitivity, Sensitivity, get_sensitivity
+
+try:
+    __version__ = version("olsbayes")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    __version__ = "0.0.0+unknown"
+
+__all__ = [
+    "__version__",
+    # geometry and sensitivity
+    "SensorArray",
+    "Ring",
+    "Sphere",
+    "Plate",
+    "wrap_angle",
+    "Sensitivity",
+    "Cosine",
+    "CosinePower",
+    "CustomSensitivity",
+    "get_sensitivity",
+    # model
+    "Scene",
+    "Model",
+    "CRLBResult",
+    "crlb",
+    "crlb_eq3",
+    "crlb_eq4",
+    # errors and warnings
+    "OlsBayesError",
+    "InputError",
+    "ConfigError",
+    "OlsBayesWarning",
+    "ResolutionWarning",
+    "KinkWarning",
+    "ConvergenceWarning",
+    "EvidenceWarning",
+    "NullSpaceWarning",
+]

@@ -1,0 +1,167 @@
+"""Fisher information and the Cramér–Rao lower bound (CRLB), exact and closed form."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validation import finite_array, integer, positive_float
+from .errors import InputError, KinkWarning, ResolutionWarning
+from .model import Model
+from .scene import Scene
+
+__all__ = ["CRLBResult", "crlb", "crlb_eq3", "crlb_eq4", "kink_sources"]
+
+#: Relative eigenvalue below which a Fisher matrix counts as singular.
+SINGULAR_RTOL = 1e-10
+
+
+@dataclass(frozen=True)
+class CRLBResult:
+    """Exact CRLB of one scene.
+
+    Attributes
+    ----------
+    fisher, cov : ndarray, shape (P, P)
+        Fisher information and its (pseudo-)inverse, in the model's flat layout.
+    direction_std : ndarray, shape (K,) or (K, 2) or None
+        Bound on the std of the angle (ring) or (longitude, latitude) (sphere), rad.
+    intensity_std : ndarray, shape (K,)
+        Bound on the std of each intensity.
+    position_std : ndarray, shape (K, 3) or None
+        Bound on the std of each near-source coordinate (plate).
+    condition : float
+        Condition number of the Fisher matrix (inf when singular).
+    resolvable : bool
+        False when some parameter is not identifiable (its std is inf).
+    """
+
+    fisher: np.ndarray
+    cov: np.ndarray
+    direction_std: np.ndarray | None
+    intensity_std: np.ndarray
+    position_std: np.ndarray | None
+    condition: float
+    resolvable: bool
+
+    @property
+    def std(self) -> np.ndarray:
+        """Bound on every parameter's std in the flat layout, shape (P,)."""
+        return np.sqrt(np.diag(self.cov))
+
+
+def bound_covariance(fisher: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Covariance bound of a Fisher matrix, with unidentifiable parameters at inf.
+
+    A parameter's bound is finite iff its unit vector is orthogonal to the null
+    space of the Fisher matrix; finite bounds then come from the pseudo-inverse.
+
+    Returns
+    -------
+    cov : ndarray (P, P)
+    condition : float
+    singular : ndarray of bool (P,)
+        Parameters whose bound is infinite.
+    """
+    w, v = np.linalg.eigh(fisher)
+    top = w.max() if w.size else 0.0
+    null = w <= SINGULAR_RTOL * max(top, np.finfo(float).tiny)
+    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
+    cov = (v * inv_w) @ v.T
+    singular = np.any(np.abs(v[:, null]) > 1e-6, axis=1)
+    cov[singular, :] = np.inf
+    cov[:, singular] = np.inf
+    cond = np.inf if null.any() else float(top / w.min()) if w.size else 1.0
+    return cov, cond, singular
+
+
+def kink_sources(model: Model, params: np.ndarray, atol: float = 1e-9) -> np.ndarray:
+    """Which sources sit on the kink of a kinked law (a sub-sensor at 90 deg).
+
+    Returns a bool array of shape (..., K).
+    """
+    if not model.sensitivity.kink:
+        return np.zeros(np.shape(params)[:-1] + (model.n_sources_of(params),), bool)
+    return np.any(np.abs(model.cosines(params)) < atol, axis=-1)
+
+
+def crlb(model: Model, scene: Scene) -> CRLBResult:
+    """Exact CRLB of ``scene`` from the Fisher information of Eq. 1.
+
+    Warns :class:`~olsbayes.errors.ResolutionWarning` (and reports inf std) when
+    the Fisher matrix is singular -- sources closer than the array resolves -- and
+    :class:`~olsbayes.errors.KinkWarning` when a sub-sensor lies exactly 90 deg
+    from a source, where the clipped cosine is not differentiable and the bound
+    depends on the one-sided derivative used (here the dark-side one, 0).
+    """
+    x = model.pack(scene)
+    k = scene.n_sources
+    fisher = model.fisher(x)
+    cov, cond, singular = bound_covariance(fisher)
+    if singular.any():
+        names = [n for n, s in zip(model.param_names(k), singular) if s]
+        warnings.warn(
+            f"Fisher matrix is singular: {', '.join(names)} cannot be identified "
+            "(sources closer than the array can resolve); their CRLB is inf",
+            ResolutionWarning,
+            stacklevel=2,
+        )
+    if np.any(kink_sources(model, x)):
+        warnings.warn(
+            "a sub-sensor lies exactly 90 deg from a source (the kink of costn): the "
+            "likelihood is not differentiable there and the CRLB is one-sided",
+            KinkWarning,
+            stacklevel=2,
+        )
+    std = np.sqrt(np.diag(cov)).reshape(k, model.n_loc + 1)
+    loc_std = std[:, :-1]
+    direction_std = None if model.kind == "position" else (
+        loc_std[:, 0] if model.kind == "angle" else loc_std
+    )
+    return CRLBResult(
+        fisher=fisher,
+        cov=cov,
+        direction_std=direction_std,
+        intensity_std=std[:, -1],
+        position_std=loc_std if model.kind == "position" else None,
+        condition=cond,
+        resolvable=not singular.any(),
+    )
+
+
+def crlb_eq3(n: int, sigma: float, intensity: float | np.ndarray) -> tuple[np.ndarray, float]:
+    """Eq. 3: single-source CRLB on a ring of ``n`` sub-sensors.
+
+    Returns ``(theta_std, intensity_std)`` = (2 sigma / (sqrt(n) I), 2 sigma / sqrt(n)).
+    Exact for even ``n`` when no sub-sensor sits on the source's horizon.
+    """
+    n = integer("n", n, low=3)
+    sigma = positive_float("sigma", sigma)
+    inten = finite_array("intensity", intensity, nonnegative=True)
+    if np.any(inten == 0):
+        raise InputError("intensity must be > 0 for a finite angle bound; got 0")
+    return 2.0 * sigma / (np.sqrt(n) * inten), 2.0 * sigma / np.sqrt(n)
+
+
+def crlb_eq4(
+    n: int, sigma: float, intensity: float | np.ndarray, separation: float | np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 4: the paper's two-source approximation on a ring.
+
+    Returns ``(theta_std, intensity_std)`` with theta_std = 2 sigma / (I sqrt(n d/pi))
+    and, by the same argument, intensity_std = 2 sigma / sqrt(n d/pi), where d is
+    the angular separation (rad, folded to [0, pi]).  Where n d / pi <= 1 (the
+    paper's "random guessing" region) both are inf.
+    """
+    n = integer("n", n, low=3)
+    sigma = positive_float("sigma", sigma)
+    inten = finite_array("intensity", intensity, nonnegative=True)
+    sep = np.abs(np.asarray(finite_array("separation", separation)))
+    sep = np.minimum(np.mod(sep, 2 * np.pi), 2 * np.pi - np.mod(sep, 2 * np.pi))
+    eff = n * sep / np.pi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        amp = np.where(eff > 1.0, 2.0 * sigma / np.sqrt(eff), np.inf)
+        ang = np.where(eff > 1.0, amp / inten, np.inf)
+    return ang, amp

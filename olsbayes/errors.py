@@ -1,0 +1,57 @@
+"""Exception and warning classes used at every public boundary.
+
+Every error a user can provoke with bad input is an :class:`OlsBayesError`, a
+subclass of :class:`ValueError`, whose message names the argument, the value
+received and the accepted range.  Known failure regions of a method raise a
+specific :class:`OlsBayesWarning` subclass through :func:`warnings.warn`.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "OlsBayesError",
+    "InputError",
+    "ConfigError",
+    "OlsBayesWarning",
+    "ResolutionWarning",
+    "KinkWarning",
+    "ConvergenceWarning",
+    "EvidenceWarning",
+    "NullSpaceWarning",
+]
+
+
+class OlsBayesError(ValueError):
+    """Base class of every error raised for bad user input."""
+
+
+class InputError(OlsBayesError):
+    """An argument of a public function is out of its accepted range."""
+
+
+class ConfigError(OlsBayesError):
+    """A configuration (TOML) file is malformed or holds unknown keys."""
+
+
+class OlsBayesWarning(UserWarning):
+    """Base class of the package's warnings."""
+
+
+class ResolutionWarning(OlsBayesWarning):
+    """Sources closer than the array can resolve: the Fisher matrix is singular."""
+
+
+class KinkWarning(OlsBayesWarning):
+    """A source lies on the kink of the clipped cosine (a sub-sensor 90 deg away)."""
+
+
+class ConvergenceWarning(OlsBayesWarning):
+    """An optimiser or sampler stopped before its convergence criterion held."""
+
+
+class EvidenceWarning(OlsBayesWarning):
+    """Two evidence estimates disagree, or one is not to be trusted."""
+
+
+class NullSpaceWarning(OlsBayesWarning):
+    """An imaging problem whose design matrix has a large null space."""

@@ -1,0 +1,244 @@
+"""Eq. 1 forward model: response, analytic Jacobian, likelihood, simulation.
+
+Parameter vectors are flat arrays of shape ``(..., n_params)`` whose leading axes
+are batch axes (walkers, trials).  For K sources the layout is per source,
+``[location..., intensity]`` repeated K times, i.e. ``x.reshape(..., K, d + 1)``
+with d = 1 (ring angle), 2 (longitude, latitude) or 3 (position).
+
+The kernel is trig-free per sensor-source pair: each source's direction becomes
+one unit vector (a handful of cos/sin per source), then ``c = n . u`` is a
+matrix product and the law ``g(c)`` a clip -- multiply-adds only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import as_rng, finite_array, positive_float
+from .errors import InputError
+from .geometry import SensorArray, lonlat_to_unit, wrap_angle
+from .scene import Scene
+from .sensitivity import Sensitivity, get_sensitivity
+
+__all__ = ["Model"]
+
+_LOC_NAMES = {"angle": ("theta",), "lonlat": ("lon", "lat"), "position": ("x", "y", "z")}
+
+
+class Model:
+    """Eq. 1 for one sensor array, noise level and sensitivity law.
+
+    Parameters
+    ----------
+    array : SensorArray
+        The sub-sensors (:class:`~olsbayes.Ring`, :class:`~olsbayes.Sphere`, ...).
+    sigma : float
+        Standard deviation of the additive Gaussian sub-sensor noise (> 0), in
+        units of the readings.
+    sensitivity : Sensitivity or str, optional
+        Angular law; default the paper's clipped cosine.
+    """
+
+    def __init__(
+        self,
+        array: SensorArray,
+        sigma: float,
+        sensitivity: Sensitivity | str | None = None,
+    ):
+        if not isinstance(array, SensorArray):
+            raise InputError(
+                f"array must be a SensorArray (Ring, Sphere, Plate); got {type(array).__name__}"
+            )
+        self.array = array
+        self.sigma = positive_float("sigma", sigma)
+        self.sensitivity = get_sensitivity(sensitivity)
+        self._normals_t = np.ascontiguousarray(array.normals.T)
+
+    # -- layout -----------------------------------------------------------------
+    @property
+    def n_sensors(self) -> int:
+        """Number N of sub-sensors."""
+        return self.array.n_sensors
+
+    @property
+    def kind(self) -> str:
+        """Source space: ``"angle"``, ``"lonlat"`` or ``"position"``."""
+        return self.array.source_kind
+
+    @property
+    def n_loc(self) -> int:
+        """Location parameters per source (1, 2 or 3)."""
+        return self.array.n_source_params
+
+    def n_params(self, n_sources: int) -> int:
+        """Length of the flat parameter vector for ``n_sources`` sources."""
+        return int(n_sources) * (self.n_loc + 1)
+
+    def n_sources_of(self, params: np.ndarray) -> int:
+        """Number of sources K encoded by the last axis of ``params``."""
+        p = np.shape(params)[-1] if np.ndim(params) else -1
+        if p < 0 or p % (self.n_loc + 1):
+            raise InputError(
+                f"params must have last axis a multiple of {self.n_loc + 1} "
+                f"({_LOC_NAMES[self.kind] + ('I',)} per source); got shape {np.shape(params)}"
+            )
+        return p // (self.n_loc + 1)
+
+    def param_names(self, n_sources: int) -> list[str]:
+        """Names such as ``theta[0], I[0], theta[1], I[1]`` in layout order."""
+        names = _LOC_NAMES[self.kind] + ("I",)
+        return [f"{nm}[{k}]" for k in range(int(n_sources)) for nm in names]
+
+    def pack(self, scene: Scene) -> np.ndarray:
+        """Flat parameter vector, shape (K * (d + 1),), of a scene."""
+        if not isinstance(scene, Scene):
+            raise InputError(f"scene must be a Scene; got {type(scene).__name__}")
+        if scene.n_sources and scene.kind != self.kind:
+            raise InputError(
+                f"scene has {scene.kind!r} sources but the array expects {self.kind!r} "
+                f"sources ({'/'.join(_LOC_NAMES[self.kind])})"
+            )
+        if self.kind == "position" and scene.n_sources and np.any(scene.positions[:, 2] <= 0):
+            raise InputError("positions z must be > 0 (sources in front of the plate)")
+        return np.column_stack([scene.locations, scene.intensities]).ravel()
+
+    def unpack(self, params: np.ndarray) -> Scene:
+        """The :class:`Scene` of one flat parameter vector (intensities clipped at 0)."""
+        x = finite_array("params", params, ndim=1, allow_empty=True)
+        k = self.n_sources_of(x)
+        blocks = x.reshape(k, self.n_loc + 1)
+        inten = np.maximum(blocks[:, -1], 0.0)
+        loc = blocks[:, :-1]
+        if self.kind == "position":
+            return Scene(positions=loc, intensities=inten)
+        if self.kind == "angle":
+            return Scene(directions=loc[:, 0], intensities=inten)
+        lat = np.clip(loc[:, 1], -np.pi / 2, np.pi / 2)
+        return Scene(directions=np.column_stack([loc[:, 0], lat]), intensities=inten)
+
+    def _as_params(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
+        if isinstance(scene_or_params, Scene):
+            return self.pack(scene_or_params)
+        x = np.asarray(scene_or_params, dtype=float)
+        self.n_sources_of(x)
+        return x
+
+    # -- kernel -----------------------------------------------------------------
+    def _split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        k = self.n_sources_of(x)
+        blocks = x.reshape(x.shape[:-1] + (k, self.n_loc + 1))
+        return blocks[..., :-1], blocks[..., -1]
+
+    def _directions(self, loc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unit vectors (..., K, D) and tangents d u / d loc (..., K, d, D)."""
+        if self.kind == "angle":
+            th = loc[..., 0]
+            c, s = np.cos(th), np.sin(th)
+            u = np.stack([c, s], axis=-1)
+            return u, np.stack([-s, c], axis=-1)[..., None, :]
+        lon, lat = loc[..., 0], loc[..., 1]
+        u = lonlat_to_unit(lon, lat)
+        clo, slo, cla, sla = np.cos(lon), np.sin(lon), np.cos(lat), np.sin(lat)
+        d_lon = np.stack([-cla * slo, cla * clo, np.zeros_like(lon)], axis=-1)
+        d_lat = np.stack([-sla * clo, -sla * slo, cla], axis=-1)
+        return u, np.stack([d_lon, d_lat], axis=-2)
+
+    def cosines(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
+        """c = cos(angle between normal n and source), shape (..., K, N)."""
+        x = self._as_params(scene_or_params)
+        loc, _ = self._split(x)
+        if self.kind == "position":
+            d = loc[..., :, None, :] - self.array.positions
+            nd = np.einsum("...ni,ni->...n", d, self.array.normals)
+            return nd / np.linalg.norm(d, axis=-1)
+        u, _ = self._directions(loc)
+        return u @ self._normals_t
+
+    def response(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
+        """Noiseless Eq. 1 readings, shape (..., N)."""
+        x = self._as_params(scene_or_params)
+        loc, inten = self._split(x)
+        if self.kind == "position":
+            d = loc[..., :, None, :] - self.array.positions
+            r2 = np.einsum("...i,...i->...", d, d)
+            c = np.einsum("...ni,ni->...n", d, self.array.normals) / np.sqrt(r2)
+            g = self.sensitivity.value(c) / r2
+        else:
+            u, _ = self._directions(loc)
+            g = self.sensitivity.value(u @ self._normals_t)
+        return (inten[..., None, :] @ g)[..., 0, :]
+
+    def jacobian(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
+        """d response / d params, shape (..., N, n_params)."""
+        x = self._as_params(scene_or_params)
+        loc, inten = self._split(x)
+        if self.kind == "position":
+            blocks = self._jacobian_near(loc, inten)
+        else:
+            u, tang = self._directions(loc)
+            c = u @ self._normals_t  # (..., K, N)
+            g, dg = self.sensitivity.value(c), self.sensitivity.derivative(c)
+            dc = tang @ self._normals_t  # (..., K, d, N)
+            d_loc = (inten[..., None] * dg)[..., None, :] * dc
+            blocks = np.concatenate([d_loc, g[..., None, :]], axis=-2)  # (..., K, d+1, N)
+        jac = np.moveaxis(blocks, -1, -3)  # (..., N, K, d+1)
+        return jac.reshape(jac.shape[:-2] + (-1,))
+
+    def _jacobian_near(self, loc: np.ndarray, inten: np.ndarray) -> np.ndarray:
+        d = loc[..., :, None, :] - self.array.positions  # (..., K, N, 3)
+        r2 = np.einsum("...i,...i->...", d, d)
+        r = np.sqrt(r2)
+        nrm = self.array.normals
+        c = np.einsum("...ni,ni->...n", d, nrm) / r
+        g, dg = self.sensitivity.value(c), self.sensitivity.derivative(c)
+        dc = nrm / r[..., None] - (c / r2)[..., None] * d  # (..., K, N, 3)
+        dpos = (dg / r2)[..., None] * dc - (2.0 * g / r2**2)[..., None] * d
+        d_loc = np.moveaxis(inten[..., None, None] * dpos, -1, -2)  # (..., K, 3, N)
+        return np.concatenate([d_loc, (g / r2)[..., None, :]], axis=-2)
+
+    # -- statistics -------------------------------------------------------------
+    def check_data(self, data: object, name: str = "data") -> np.ndarray:
+        """Validate readings: finite, last axis of length N."""
+        arr = finite_array(name, data, last=self.n_sensors)
+        return arr
+
+    def log_likelihood(
+        self, scene_or_params: Scene | np.ndarray, data: np.ndarray
+    ) -> np.ndarray:
+        """Gaussian log-likelihood log p(data | params), batched: shape (...,).
+
+        ``params`` (..., n_params) and ``data`` (..., N) broadcast over leading axes.
+        """
+        resid = np.asarray(data, dtype=float) - self.response(scene_or_params)
+        chi2 = np.einsum("...n,...n->...", resid, resid) / self.sigma**2
+        return -0.5 * chi2 - self.n_sensors * (np.log(self.sigma) + 0.5 * np.log(2 * np.pi))
+
+    def fisher(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
+        """Fisher information J^T J / sigma^2, shape (..., n_params, n_params)."""
+        jac = self.jacobian(scene_or_params)
+        return np.swapaxes(jac, -1, -2) @ jac / self.sigma**2
+
+    def simulate(
+        self,
+        scene: Scene | np.ndarray,
+        rng: np.random.Generator | int | None = None,
+        size: int | tuple[int, ...] | None = None,
+    ) -> np.ndarray:
+        """Noisy readings: response + N(0, sigma^2) noise, shape ``size + (N,)``."""
+        gen = as_rng(rng)
+        mu = self.response(scene)
+        shape = () if size is None else tuple(np.atleast_1d(size).astype(int))
+        return mu + self.sigma * gen.standard_normal(shape + mu.shape)
+
+    def canonical(self, params: np.ndarray) -> np.ndarray:
+        """Wrap angles and sort sources by location: shape as ``params``."""
+        x = np.array(params, dtype=float)
+        blocks = x.reshape(x.shape[:-1] + (self.n_sources_of(x), self.n_loc + 1))
+        if self.kind != "position":
+            blocks[..., 0] = wrap_angle(blocks[..., 0])
+        order = np.argsort(blocks[..., 0], axis=-1, kind="stable")
+        blocks = np.take_along_axis(blocks, order[..., None], axis=-2)
+        return blocks.reshape(x.shape)
+
+    def __repr__(self) -> str:
+        return f"Model({self.array!r}, sigma={self.sigma!r}, sensitivity={self.sensitivity!r})"
