@@ -1,0 +1,146 @@
+"""Objects from a validated :class:`~olsbayes.config.Config`: array, model, scene, data.
+
+Errors raised by the library while building (e.g. a scene of the wrong kind for
+the array) are re-raised as :class:`~olsbayes.errors.ConfigError` naming the
+configuration file, so a user knows which file to fix.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import numpy as np
+
+from .config import Config, read_readings
+from .errors import ConfigError, InputError
+from .geometry import Plate, Ring, SensorArray, Sphere
+from .model import Model
+from .scene import Scene
+from .sensitivity import CosinePower, get_sensitivity
+
+__all__ = ["array_from_config", "model_from_config", "scene_from_config", "data_from_config"]
+
+
+@contextlib.contextmanager
+def _as_config_error(cfg: Config, section: str) -> Iterator[None]:
+    try:
+        yield
+    except InputError as exc:
+        raise ConfigError(f"{cfg.source}: [{section}] {exc}") from None
+
+
+def _need(sec: Mapping[str, Any], key: str, what: str) -> Any:
+    if key not in sec:
+        raise ConfigError(f"[sensor] {key} is required for {what}")
+    return sec[key]
+
+
+def _either(sec: Mapping[str, Any], inline: str, file: str, required: bool) -> np.ndarray | None:
+    if inline in sec and file in sec:
+        raise ConfigError(f"[sensor] give {inline} or {file}, not both")
+    if inline in sec:
+        return sec[inline]
+    if file in sec:
+        return read_readings(sec[file], name=f"[sensor] {file}")
+    if required:
+        raise ConfigError(f"[sensor] geometry = 'custom' needs {inline} or {file}")
+    return None
+
+
+def array_from_config(cfg: Config) -> SensorArray:
+    """The :class:`SensorArray` of the ``[sensor]`` section."""
+    sec = cfg.section("sensor")
+    geo = sec["geometry"]
+    with _as_config_error(cfg, "sensor"):
+        if geo == "ring":
+            return Ring(_need(sec, "n", "a ring"), sec.get("offset", 0.0))
+        if geo == "sphere":
+            if sec.get("layout", "grid") == "fibonacci":
+                if "n_lat" in sec or "n_lon" in sec:
+                    raise ConfigError("[sensor] layout = 'fibonacci' takes n, not n_lat/n_lon")
+                return Sphere.fibonacci(_need(sec, "n", "a Fibonacci sphere"))
+            if "n" in sec:
+                raise ConfigError("[sensor] layout = 'grid' takes n_lat and n_lon, not n")
+            return Sphere.grid(
+                _need(sec, "n_lat", "a sphere grid"),
+                _need(sec, "n_lon", "a sphere grid"),
+                sec["lat_max"],
+                (sec["lon_min"], sec["lon_max"]),
+            )
+        if geo == "plate":
+            return Plate.grid(_need(sec, "nx", "a plate"), _need(sec, "ny", "a plate"),
+                              sec["pitch"])
+        normals = _either(sec, "normals", "normals_file", required=True)
+        positions = _either(sec, "positions", "positions_file", required=False)
+        return SensorArray(normals, positions)
+
+
+def model_from_config(cfg: Config) -> Model:
+    """The :class:`Model` (array, sigma, sensitivity law) of the ``[sensor]`` section."""
+    sec = cfg.section("sensor")
+    law = sec.get("sensitivity", "cosine")
+    if "p" in sec and law != "cosine_power":
+        raise ConfigError(
+            f"{cfg.source}: [sensor] p is only used with sensitivity = 'cosine_power'; "
+            f"got sensitivity = {law!r}"
+        )
+    array = array_from_config(cfg)
+    with _as_config_error(cfg, "sensor"):
+        sens = CosinePower(sec.get("p", 2.0)) if law == "cosine_power" else get_sensitivity(law)
+        return Model(array, sec["sigma"], sens)
+
+
+def scene_from_config(cfg: Config, model: Model | None = None) -> Scene:
+    """The :class:`Scene` of the ``[scene]`` section, checked against ``model``."""
+    sec = cfg.section("scene")
+    if ("directions" in sec) == ("positions" in sec):
+        raise ConfigError(f"{cfg.source}: [scene] needs exactly one of directions and positions")
+    with _as_config_error(cfg, "scene"):
+        if "positions" in sec:
+            pos = sec["positions"]
+            pos = pos.reshape(-1, 3) if pos.size == 0 else pos
+            scene = Scene(positions=pos, intensities=sec["intensities"])
+        else:
+            d = sec["directions"]
+            if sec.get("angle_unit", "rad") == "deg":
+                d = np.deg2rad(d)
+            scene = Scene(directions=d, intensities=sec["intensities"])
+        if model is not None:
+            model.pack(scene)
+    return scene
+
+
+def data_from_config(
+    cfg: Config,
+    model: Model,
+    scene: Scene | None = None,
+    rng: np.random.Generator | int | None = None,
+) -> np.ndarray | None:
+    """Readings of the ``[data]`` section: read from ``file`` or simulated.
+
+    Returns None when there is no ``[data]`` section.  ``rng`` overrides
+    ``[data] seed`` when given.  Shape (N,) for one measurement, (T, N) for T.
+    """
+    sec = cfg.get("data")
+    if sec is None:
+        return None
+    if "file" in sec and sec.get("simulate", False):
+        raise ConfigError(f"{cfg.source}: [data] give file or simulate = true, not both")
+    if "file" in sec:
+        if "seed" in sec or sec.get("repeats", 1) != 1:
+            raise ConfigError(
+                f"{cfg.source}: [data] seed and repeats apply only to simulate = true"
+            )
+        return read_readings(sec["file"], model.n_sensors, name="[data] file")
+    if not sec.get("simulate", False):
+        raise ConfigError(f"{cfg.source}: [data] needs file = '...' or simulate = true")
+    if scene is None:
+        scene = scene_from_config(cfg, model)
+    seed = rng if rng is not None else sec.get("seed")
+    if seed is None:
+        raise ConfigError(f"{cfg.source}: [data] simulate = true needs a seed (or --seed)")
+    reps = sec.get("repeats", 1)
+    with _as_config_error(cfg, "data"):
+        return model.simulate(scene, seed, size=None if reps == 1 else reps)

@@ -1,0 +1,116 @@
+"""Exact Cramér-Rao lower bound of a scene (and the paper's Eq. 3 / Eq. 4 on a ring).
+
+Example:
+  olsbayes crlb                               # the built-in Fig. 3 scene
+  olsbayes crlb scene.toml --json
+  olsbayes crlb --set sensor.n=60 --set sensor.sigma=0.001
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+
+from ..build import model_from_config, scene_from_config
+from ..crlb import CRLBResult, crlb, crlb_eq3, crlb_eq4
+from ..model import Model
+from ..scene import Scene
+from ._common import add_command, add_config_args, add_json_arg, emit, format_table, load_cli_config
+
+__all__ = ["register", "run", "crlb_payload", "crlb_text"]
+
+
+def register(subparsers: Any) -> None:
+    p = add_command(subparsers, "crlb", help="exact CRLB of a scene", description=__doc__)
+    add_config_args(p)
+    add_json_arg(p)
+    p.set_defaults(run=run)
+
+
+def _paper_bounds(model: Model, scene: Scene) -> dict[str, Any] | None:
+    """Eq. 3 per source and, for two sources, Eq. 4 -- ring geometry only."""
+    if model.kind != "angle" or scene.n_sources == 0 or not hasattr(model.array, "n"):
+        return None
+    inten = np.where(scene.intensities > 0, scene.intensities, np.nan)
+    th3 = 2.0 * model.sigma / (np.sqrt(model.n_sensors) * inten)
+    out: dict[str, Any] = {
+        "eq3_direction_std": th3,
+        "eq3_intensity_std": crlb_eq3(model.n_sensors, model.sigma, 1.0)[1],
+    }
+    if scene.n_sources == 2:
+        sep = float(abs(scene.directions[1] - scene.directions[0]))
+        th4, i4 = crlb_eq4(model.n_sensors, model.sigma, scene.intensities, sep)
+        out.update(eq4_direction_std=th4, eq4_intensity_std=float(i4), separation=sep)
+    return out
+
+
+def _truth(scene: Scene) -> dict[str, Any]:
+    key = "positions" if scene.kind == "position" else "directions"
+    return {key: getattr(scene, key), "intensities": scene.intensities}
+
+
+def crlb_payload(model: Model, scene: Scene, res: CRLBResult) -> dict[str, Any]:
+    """JSON-ready dictionary of a CRLB result."""
+    payload: dict[str, Any] = {
+        "model": repr(model),
+        "n_sensors": model.n_sensors,
+        "sigma": model.sigma,
+        "kind": model.kind,
+        "truth": _truth(scene),
+        "crlb": {
+            "direction_std": res.direction_std,
+            "position_std": res.position_std,
+            "intensity_std": res.intensity_std,
+            "condition": res.condition,
+            "resolvable": res.resolvable,
+        },
+        "param_names": model.param_names(scene.n_sources),
+    }
+    paper = _paper_bounds(model, scene)
+    if paper is not None:
+        payload["paper"] = paper
+    return payload
+
+
+def crlb_text(model: Model, scene: Scene, res: CRLBResult) -> str:
+    """A readable table: truth and CRLB per source (plus Eq. 3 / 4 on a ring)."""
+    loc_names = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}[
+        model.kind
+    ]
+    loc_std = res.position_std if model.kind == "position" else res.direction_std
+    loc_std = np.asarray(loc_std).reshape(scene.n_sources, -1)
+    header = ["k", *loc_names, "I", *(f"sd({n})" for n in loc_names), "sd(I)"]
+    rows = [
+        [k, *scene.locations[k], scene.intensities[k], *loc_std[k], res.intensity_std[k]]
+        for k in range(scene.n_sources)
+    ]
+    paper = _paper_bounds(model, scene)
+    if paper is not None:
+        header += ["Eq3 sd(theta)", "Eq3 sd(I)"]
+        for k, row in enumerate(rows):
+            row += [paper["eq3_direction_std"][k], paper["eq3_intensity_std"]]
+        if "eq4_direction_std" in paper:
+            header += ["Eq4 sd(theta)", "Eq4 sd(I)"]
+            for k, row in enumerate(rows):
+                row += [paper["eq4_direction_std"][k], paper["eq4_intensity_std"]]
+    unit = "rad" if model.kind != "position" else "length units"
+    lines = [
+        f"{model!r}",
+        f"Exact CRLB (standard deviations; locations in {unit}); "
+        f"Fisher condition number {res.condition:.3g}",
+        format_table(header, rows),
+    ]
+    if not res.resolvable:
+        lines.append("Some parameters are not identifiable (inf): sources too close to resolve.")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_cli_config(args, required=("sensor", "scene"))
+    model = model_from_config(cfg)
+    scene = scene_from_config(cfg, model)
+    res = crlb(model, scene)
+    emit(args, crlb_payload(model, scene, res), crlb_text(model, scene, res))
+    return 0

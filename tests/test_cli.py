@@ -1,0 +1,139 @@
+"""The olsbayes command line: subcommands, --json, errors as one line + exit 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from olsbayes import Model, Ring, Scene, crlb
+from olsbayes.cli import COMMANDS, build_parser, main
+from olsbayes.cli._common import DEFAULT_CONFIG
+
+
+def run_cli(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code, err):
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "error" in lines[0]
+    assert "Traceback" not in err
+
+
+def test_every_command_has_help(capsys):
+    for name in (None, *COMMANDS):
+        code, out, _ = run_cli(capsys, *([name] if name else []), "--help")
+        assert code == 0
+        assert out.startswith("usage: olsbayes")
+
+
+def test_parser_lists_every_command():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert set(COMMANDS) <= set(sub.choices)
+
+
+def test_crlb_json_matches_library(capsys):
+    code, out, _ = run_cli(capsys, "crlb", "--json")
+    assert code == 0
+    payload = json.loads(out)
+    model = Model(Ring(30), 0.01)
+    scene = Scene(directions=[0.37, 0.37 - np.pi], intensities=[1.0, 0.2])
+    ref = crlb(model, scene)
+    np.testing.assert_allclose(payload["crlb"]["direction_std"], ref.direction_std, rtol=1e-12)
+    np.testing.assert_allclose(payload["crlb"]["intensity_std"], ref.intensity_std, rtol=1e-12)
+    # two sources pi apart are two independent single-source problems: Eq. 3 holds
+    np.testing.assert_allclose(payload["paper"]["eq3_direction_std"], ref.direction_std, rtol=1e-9)
+
+
+def test_crlb_set_override_and_singular_json(capsys):
+    code, out, err = run_cli(capsys, "crlb", "--json", "--set", "scene.directions=[0.1, 0.1]")
+    assert code == 0
+    payload = json.loads(out)  # strict JSON: inf became null
+    assert payload["crlb"]["resolvable"] is False
+    assert payload["crlb"]["direction_std"] == [None, None]
+    assert "ResolutionWarning" in err and len(err.strip().splitlines()) == 1
+
+
+def test_simulate_writes_file_fit_can_read(tmp_path, capsys):
+    out_file = tmp_path / "r.txt"
+    code, out, _ = run_cli(capsys, "simulate", "--seed", "5", "--repeats", "3",
+                           "--out", str(out_file))
+    assert code == 0 and "wrote 3 row(s)" in out
+    rows = np.loadtxt(out_file)
+    assert rows.shape == (3, 30)
+    model = Model(Ring(30), 0.01)
+    expect = model.simulate(Scene(directions=[0.37, 0.37 - np.pi], intensities=[1.0, 0.2]),
+                            5, size=3)
+    np.testing.assert_allclose(rows, expect, rtol=0, atol=1e-14)  # %.17g round trip
+
+
+def test_simulate_json_with_config(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(
+        '[sensor]\ngeometry = "sphere"\nlayout = "fibonacci"\nn = 40\nsigma = 0.1\n'
+        "[scene]\ndirections = [[0.0, 0.2]]\nintensities = [2.0]\n"
+    )
+    code, out, _ = run_cli(capsys, "simulate", str(cfg), "--json", "--seed", "1")
+    assert code == 0
+    assert np.asarray(json.loads(out)["readings"]).shape == (1, 40)
+
+
+def test_demo_writes_figure_and_json(tmp_path, capsys):
+    code, out, _ = run_cli(capsys, "demo", "--out", str(tmp_path / "d"), "--json")
+    assert code == 0
+    payload = json.loads(out)
+    assert payload["n_sensors"] == 30 and payload["sigma"] == 0.01
+    assert payload["truth"]["intensities"] == [1.0, 0.2]
+    for fig in payload["figures"]:
+        assert Path(fig).stat().st_size > 1000
+
+
+def test_demo_print_config_round_trips(capsys):
+    code, out, _ = run_cli(capsys, "demo", "--print-config")
+    assert code == 0 and out == DEFAULT_CONFIG
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["nonsense"],
+        ["crlb", "--bogus"],
+        ["crlb", "/no/such/file.toml"],
+        ["crlb", "--set", "sensor.n=2"],
+        ["crlb", "--set", "sensor.colour=1"],
+        ["crlb", "--set", "nodot=1"],
+        ["demo", "--seed", "-3"],
+        ["simulate", "--repeats", "0"],
+    ],
+)
+def test_bad_input_is_one_line_exit_2(argv, capsys):
+    code, _, err = run_cli(capsys, *argv)
+    assert_one_line_error(code, err)
+
+
+def test_real_subprocess_demo(tmp_path):
+    env = dict(os.environ, MPLBACKEND="Agg")
+    exe = Path(sys.executable).with_name("olsbayes")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-c",
+                                            "import sys; from olsbayes.cli import main; "
+                                            "sys.exit(main())"]
+    proc = subprocess.run(cmd + ["demo", "--out", str(tmp_path / "demo")], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "CRLB" in proc.stdout
+    assert (tmp_path / "demo" / "response.png").exists()
+    bad = subprocess.run(cmd + ["crlb", "--set", "sensor.sigma=-1"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2
+    assert len(bad.stderr.strip().splitlines()) == 1 and "sigma" in bad.stderr
