@@ -1,0 +1,36 @@
+"""Priors: 1-D building blocks, the joint prior of a scene, and priors on K.
+
+All 1-D priors share one vectorised interface (``log_prob``, ``cdf``, ``ppf``,
+``sample``, ``support``, ``periodic``); :class:`ScenePrior` assembles them into
+the joint prior of K exchangeable sources in the model's flat layout (see its
+module docstring for the K! bookkeeping), and :class:`PoissonCount` /
+:class:`UniformCount` weight the number of sources.
+"""
+
+from .counts import CountPrior, PoissonCount, UniformCount
+from .scene import ScenePrior, data_intensity_bound, default_priors
+from .univariate import (
+    CircularUniform,
+    Exponential,
+    HalfNormal,
+    LogUniform,
+    Prior,
+    SinLatitude,
+    Uniform,
+)
+
+__all__ = [
+    "Prior",
+    "Uniform",
+    "LogUniform",
+    "HalfNormal",
+    "Exponential",
+    "CircularUniform",
+    "SinLatitude",
+    "ScenePrior",
+    "default_priors",
+    "data_intensity_bound",
+    "CountPrior",
+    "PoissonCount",
+    "UniformCount",
+]

@@ -1,0 +1,324 @@
+"""Joint prior of a K-source scene in the model's flat parameter layout.
+
+Notes on exchangeable sources and K!
+------------------------------------
+:class:`ScenePrior` is a product of *the same* 1-D priors for every source, so
+its density is symmetric under any permutation of the K source blocks: it is
+the density of the **labelled** (unordered, exchangeable) parameter vector on
+the full product space, normalised to 1 there.  Consequences:
+
+* ``log_prob``, ``ppf`` and ``sample`` all work on the full labelled space;
+  an evidence computed with them (nested sampling over ``ppf``, or a Laplace
+  approximation integrated over the whole space) is the evidence of the
+  K-source model and needs **no** K! correction: the K! symmetric copies of
+  each mode are all inside the integral.
+* If instead one integrates only over the canonical wedge (sources in one
+  chosen order), the prior restricted to that wedge integrates to 1/K!, so the
+  normalised ordered prior is ``log_prob(x) + log K!`` (``log_prob_ordered``)
+  and an evidence integrated over the wedge with ``log_prob`` must be
+  multiplied by K! (add ``log_label_factor`` = log K!).  A Laplace
+  approximation around one labelled mode counts one of K! copies: add
+  ``log_label_factor`` when the modes are well separated.
+
+The optional noise parameter ``sigma`` (when inferred) is appended last.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import gammaln
+
+from .._validation import as_rng, finite_array, integer, positive_float
+from ..errors import InputError
+from .univariate import CircularUniform, LogUniform, Prior, SinLatitude, Uniform
+
+__all__ = ["ScenePrior", "default_priors", "data_intensity_bound"]
+
+_HALF_PI = np.pi / 2 + 1e-12
+_RANGES = {
+    "angle": [("theta", -np.pi - 1e-12, np.pi + 1e-12)],
+    "lonlat": [("lon", -np.pi - 1e-12, np.pi + 1e-12), ("lat", -_HALF_PI, _HALF_PI)],
+    "position": [("x", -np.inf, np.inf), ("y", -np.inf, np.inf), ("z", 0.0, np.inf)],
+}
+
+
+def _check_prior(name: str, prior: object, lo: float, hi: float, what: str) -> Prior:
+    if not isinstance(prior, Prior):
+        raise InputError(
+            f"{name} must be an olsbayes.priors prior (Uniform, CircularUniform, ...); "
+            f"got {type(prior).__name__}"
+        )
+    if prior.lower < lo or prior.upper > hi:
+        raise InputError(
+            f"{name} = {prior!r} has support [{prior.lower:.6g}, {prior.upper:.6g}] "
+            f"outside the accepted range [{lo:.6g}, {hi:.6g}] for {what}"
+        )
+    return prior
+
+
+class ScenePrior:
+    """Product prior of K exchangeable sources (and optionally the noise sigma).
+
+    Parameters
+    ----------
+    model : Model
+        Fixes the geometry (``model.kind``) and the flat layout.
+    n_sources : int
+        K >= 0.
+    intensity : Prior
+        Prior of every intensity, support within [0, inf).
+    location : sequence of Prior, optional
+        One prior per location coordinate, shared by all sources.  Defaults:
+        ring ``(CircularUniform(),)``; sphere ``(CircularUniform(), SinLatitude())``
+        (isotropic); a plate has no default (give a box).  Angles must have
+        support within [-pi, pi], latitudes within [-pi/2, pi/2], plate heights z
+        within [0, inf).
+    noise : Prior, optional
+        Prior of the noise sd ``sigma`` when it is inferred (e.g. ``LogUniform``);
+        None (default) means sigma is known, ``model.sigma``.
+
+    Notes
+    -----
+    The density is over labelled, exchangeable sources; see the module
+    docstring for the K! bookkeeping (``log_label_factor``, ``log_prob_ordered``).
+    """
+
+    def __init__(
+        self,
+        model,
+        n_sources: int,
+        intensity: Prior,
+        location: tuple[Prior, ...] | list[Prior] | None = None,
+        noise: Prior | None = None,
+    ):
+        self.kind = model.kind
+        self.n_loc = model.n_loc
+        self.n_sources = integer("n_sources", n_sources, low=0)
+        self.sigma = model.sigma
+        self._names = model.param_names(self.n_sources)
+        ranges = _RANGES[self.kind]
+        if location is None:
+            if self.kind == "position":
+                raise InputError("location priors are required for a plate: give a box "
+                                 "(three priors for x, y, z) or use default_priors(box=...)")
+            location = (CircularUniform(),) if self.kind == "angle" else (
+                CircularUniform(), SinLatitude())
+        location = tuple(location) if isinstance(location, (list, tuple)) else (location,)
+        if len(location) != self.n_loc:
+            raise InputError(
+                f"location must hold {self.n_loc} prior(s) ({', '.join(r[0] for r in ranges)}) "
+                f"for a {self.kind!r} array; got {len(location)}"
+            )
+        self.location = tuple(
+            _check_prior(f"location prior of {nm}", p, lo, hi, f"{nm} of a {self.kind!r} array")
+            for p, (nm, lo, hi) in zip(location, ranges)
+        )
+        self.intensity = _check_prior("intensity", intensity, 0.0, np.inf, "intensities")
+        self.noise = None if noise is None else _check_prior(
+            "noise", noise, 0.0, np.inf, "the noise sd sigma")
+
+    # -- layout -----------------------------------------------------------------
+    @property
+    def n_params(self) -> int:
+        """P = K (d + 1), plus one when sigma is inferred."""
+        return self.n_sources * (self.n_loc + 1) + (self.noise is not None)
+
+    @property
+    def param_names(self) -> list[str]:
+        """Names in layout order (``model.param_names(K)`` then ``"sigma"``)."""
+        return self._names + (["sigma"] if self.noise is not None else [])
+
+    @property
+    def marginals(self) -> tuple[Prior, ...]:
+        """The 1-D prior of every flat parameter, length P."""
+        per = self.location + (self.intensity,)
+        out = per * self.n_sources
+        return out + ((self.noise,) if self.noise is not None else ())
+
+    @property
+    def periodic(self) -> np.ndarray:
+        """Boolean mask (P,) of periodic parameters (ring angles, longitudes)."""
+        return np.array([p.periodic for p in self.marginals], dtype=bool)
+
+    @property
+    def periodic_indices(self) -> list[int]:
+        """Indices of periodic parameters, for dynesty's ``periodic=``."""
+        return [int(i) for i in np.flatnonzero(self.periodic)]
+
+    @property
+    def lower(self) -> np.ndarray:
+        """Lower ends of the supports, shape (P,)."""
+        return np.array([p.lower for p in self.marginals])
+
+    @property
+    def upper(self) -> np.ndarray:
+        """Upper ends of the supports, shape (P,)."""
+        return np.array([p.upper for p in self.marginals])
+
+    @property
+    def log_label_factor(self) -> float:
+        """log K!: the number of labelled copies of each unordered scene."""
+        return float(gammaln(self.n_sources + 1.0))
+
+    def _groups(self):
+        """(prior, index array) pairs, one per distinct coordinate role."""
+        w = self.n_loc + 1
+        k = np.arange(self.n_sources) * w
+        groups = [(p, k + j) for j, p in enumerate(self.location + (self.intensity,))]
+        if self.noise is not None:
+            groups.append((self.noise, np.array([self.n_params - 1])))
+        return groups
+
+    def _check(self, name: str, x: object) -> np.ndarray:
+        arr = np.asarray(x, dtype=float)
+        if arr.ndim == 0 or arr.shape[-1] != self.n_params:
+            raise InputError(
+                f"{name} must have last axis of length {self.n_params} ({self.param_names}); "
+                f"got shape {arr.shape}"
+            )
+        return arr
+
+    # -- densities and transforms -------------------------------------------------
+    def log_prob(self, x: np.ndarray) -> np.ndarray:
+        """Joint log density of labelled parameters, shape (...,) for x (..., P)."""
+        x = self._check("x", x)
+        out = np.zeros(x.shape[:-1])
+        for prior, idx in self._groups():
+            if idx.size:
+                out = out + np.sum(np.atleast_1d(prior.log_prob(x[..., idx])), axis=-1)
+        return out if out.ndim else float(out)
+
+    def log_prob_ordered(self, x: np.ndarray) -> np.ndarray:
+        """Normalised density on the canonical wedge: ``log_prob(x) + log K!``."""
+        return self.log_prob(x) + self.log_label_factor
+
+    def ppf(self, u: np.ndarray) -> np.ndarray:
+        """Unit cube (..., P) to parameters (..., P): dynesty's prior transform."""
+        u = self._check("u", u)
+        out = np.empty_like(u)
+        for prior, idx in self._groups():
+            out[..., idx] = prior.ppf(u[..., idx])
+        return out
+
+    def cdf(self, x: np.ndarray) -> np.ndarray:
+        """Parameters (..., P) to the unit cube, inverse of :meth:`ppf`."""
+        x = self._check("x", x)
+        out = np.empty_like(x)
+        for prior, idx in self._groups():
+            out[..., idx] = prior.cdf(x[..., idx])
+        return out
+
+    def sample(self, size: int | tuple[int, ...] | None = None, rng: object = None) -> np.ndarray:
+        """Independent prior draws, shape ``size + (P,)``."""
+        gen = as_rng(rng)
+        shape = () if size is None else tuple(np.atleast_1d(size).astype(int))
+        return self.ppf(gen.random(shape + (self.n_params,)))
+
+    def contains(self, x: np.ndarray) -> np.ndarray:
+        """True where ``log_prob(x)`` is finite, shape (...,)."""
+        return np.isfinite(self.log_prob(x))
+
+    def __repr__(self) -> str:
+        return (
+            f"ScenePrior(kind={self.kind!r}, n_sources={self.n_sources}, "
+            f"location={self.location!r}, intensity={self.intensity!r}, noise={self.noise!r})"
+        )
+
+
+def _direction_gain(model, prior_loc: tuple[Prior, ...]) -> float:
+    """A low quantile over the location prior of the best sub-sensor gain per unit I."""
+    gen = np.random.default_rng(20240531)  # fixed stream: a deterministic grid of directions
+    loc = np.column_stack([p.sample(4096, gen) for p in prior_loc])
+    x = np.column_stack([loc, np.ones(len(loc))])
+    best = model.response(x).max(axis=-1)
+    return float(np.quantile(best, 0.01))
+
+
+def data_intensity_bound(model, data: np.ndarray, location: tuple[Prior, ...] | None = None
+                         ) -> float:
+    """Weakly informative intensity bound from the readings.
+
+    Every source adds a non-negative reading, so one source of intensity I at a
+    location seen with best sub-sensor gain ``a`` gives ``max(data) >= a I`` up
+    to noise.  Returns ``2 (max(data) + 3 sigma) / a`` with ``a`` the 1% quantile
+    of the best gain over the location prior (a Monte Carlo grid).  It depends
+    on the data: prefer an explicit ``i_max`` for evidence calculations.
+    """
+    data = model.check_data(data)
+    if location is None:
+        location = ScenePrior(model, 0, Uniform(0.0, 1.0)).location
+    gain = _direction_gain(model, tuple(location))
+    if not gain > 0:
+        raise InputError("the array leaves part of the location prior unseen; give i_max")
+    return 2.0 * (float(np.max(data)) + 3.0 * model.sigma) / gain
+
+
+def _plate_box(model) -> tuple[Prior, Prior, Prior]:
+    pos = model.array.positions
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    size = float(max(np.max(hi - lo), 1e-12))
+    return (Uniform(lo[0] - size / 2, hi[0] + size / 2),
+            Uniform(lo[1] - size / 2, hi[1] + size / 2), Uniform(0.0, size))
+
+
+def default_priors(
+    model,
+    n_sources: int,
+    *,
+    i_max: float | None = None,
+    data: np.ndarray | None = None,
+    intensity: str | Prior = "uniform",
+    infer_sigma: bool = False,
+    sigma_range: tuple[float, float] | None = None,
+    box: tuple[Prior, Prior, Prior] | None = None,
+) -> ScenePrior:
+    """The package's default scene prior.
+
+    Parameters
+    ----------
+    model : Model
+    n_sources : int
+    i_max : float, optional
+        Upper end of the intensity prior.  If None, derived from ``data`` with
+        :func:`data_intensity_bound`; one of the two is required.
+    data : ndarray (N,), optional
+        Readings, used only when ``i_max`` is None.
+    intensity : {"uniform", "loguniform"} or Prior
+        ``Uniform(0, i_max)`` or ``LogUniform(1e-3 i_max, i_max)``, or any prior.
+    infer_sigma : bool
+        Add the noise sd as a parameter with prior ``LogUniform(*sigma_range)``,
+        default range ``(model.sigma / 100, model.sigma * 100)``.
+    box : three Priors, optional
+        Plate only: priors of x, y, z; default the plate's extent widened by half
+        its size on each side, and z in [0, size].
+    """
+    if model.kind == "position":
+        location = box if box is not None else _plate_box(model)
+    else:
+        location = None
+    if isinstance(intensity, Prior):
+        inten = intensity
+    else:
+        if i_max is None:
+            if data is None:
+                raise InputError("default_priors needs i_max (the largest intensity) or data")
+            loc = location if location is not None else ScenePrior(
+                model, 0, Uniform(0.0, 1.0)).location
+            i_max = data_intensity_bound(model, data, loc)
+        i_max = positive_float("i_max", i_max)
+        if intensity == "uniform":
+            inten = Uniform(0.0, i_max)
+        elif intensity == "loguniform":
+            inten = LogUniform(1e-3 * i_max, i_max)
+        else:
+            raise InputError(
+                f"intensity must be 'uniform', 'loguniform' or a Prior; got {intensity!r}"
+            )
+    noise = None
+    if infer_sigma:
+        rng_ = sigma_range if sigma_range is not None else (model.sigma / 100, model.sigma * 100)
+        bounds = finite_array("sigma_range", rng_, ndim=1)
+        if bounds.shape != (2,):
+            raise InputError(f"sigma_range must be (lo, hi); got {sigma_range!r}")
+        noise = LogUniform(float(bounds[0]), float(bounds[1]))
+    return ScenePrior(model, n_sources, inten, location=location, noise=noise)
