@@ -94,7 +94,7 @@ def test_sensor_array_normalises_and_compares():
         ([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], None, "non-zero"),
         ([[np.nan, 0.0], [1.0, 0.0], [0.0, 1.0]], None, "finite"),
         ([1.0, 0.0, 1.0], None, "dimension"),
-        (np.eye(3)[:, :2], np.zeros((3, 3)), "3-D normals"),
+        ([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], np.zeros((3, 3)), "3-D normals"),
         (np.eye(3), np.zeros((2, 3)), "positions"),
     ],
 )
