@@ -21,6 +21,7 @@ from .errors import (
     ResolutionWarning,
 )
 from .geometry import Plate, Ring, SensorArray, Sphere, wrap_angle
+from .ml import MLResult, fit_ml
 from .model import Model
 from .scene import Scene
 from .sensitivity import Cosine, CosinePower, CustomSensitivity, Sensitivity, get_sensitivity
@@ -50,6 +51,9 @@ __all__ = [
     "crlb",
     "crlb_eq3",
     "crlb_eq4",
+    # maximum likelihood
+    "fit_ml",
+    "MLResult",
     # errors and warnings
     "OlsBayesError",
     "InputError",

@@ -1,0 +1,149 @@
+"""Public entry point :func:`fit_ml`: validation, dispatch and the result."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .._validation import as_rng, integer, positive_float
+from ..crlb import bound_covariance
+from ..errors import ConvergenceWarning, InputError
+from ..model import Model
+from .batch import LMOutcome
+from .fast import fit_fast
+from .grid import check_grid, default_grid
+from .multistart import fit_multistart
+from .result import MLResult
+
+__all__ = ["fit_ml", "METHODS"]
+
+#: Accepted values of ``method``.
+METHODS = ("fast", "multistart")
+
+
+def _check(model: object, data: object, n_sources: object, method: object) -> tuple:
+    if not isinstance(model, Model):
+        raise InputError(f"model must be an olsbayes.Model; got {type(model).__name__}")
+    arr = model.check_data(data)
+    if arr.ndim not in (1, 2):
+        raise InputError(
+            f"data must have shape (N,) or (T, N) with N = {model.n_sensors}; got {arr.shape}"
+        )
+    k_max = model.n_sensors // (model.n_loc + 1)
+    k = integer("n_sources", n_sources, low=1, high=max(k_max, 1))
+    if model.n_params(k) > model.n_sensors:
+        raise InputError(
+            f"n_sources must be in [1, {k_max}] (K * {model.n_loc + 1} parameters must not "
+            f"exceed N = {model.n_sensors} readings); got {k}"
+        )
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}; got {method!r}")
+    return arr, k
+
+
+def _covariances(model: Model, x: np.ndarray) -> np.ndarray:
+    fisher = model.fisher(x)  # (T, P, P)
+    return np.stack([bound_covariance(f)[0] for f in fisher])
+
+
+def fit_ml(
+    model: Model,
+    data: np.ndarray,
+    n_sources: int,
+    method: str = "fast",
+    rng: np.random.Generator | int | None = None,
+    *,
+    grid: np.ndarray | None = None,
+    n_starts: int = 20,
+    n_restarts: int = 4,
+    restart_scale: float = 3.0,
+    max_iter: int | None = None,
+    warn: bool = True,
+) -> MLResult:
+    """Maximum-likelihood fit of ``n_sources`` sources (Eq. 2), one or many data vectors.
+
+    Parameters
+    ----------
+    model : Model
+        Forward model (array, noise sigma, sensitivity law); ring, sphere or plate.
+    data : array_like, shape (N,) or (T, N)
+        Readings.  A 2-D array fits T independent data vectors in one vectorised call.
+    n_sources : int
+        Number K of sources, 1 <= K and K (d + 1) <= N.
+    method : {"fast", "multistart"}
+        ``"fast"``: grid matching pursuit + alternating projection (polynomial in K),
+        joint bounded Levenberg–Marquardt, ``n_restarts`` deterministic perturbed
+        restarts; batched over trials.  ``"multistart"``: the paper's baseline,
+        ``n_starts`` pseudo-random starts each refined by L-BFGS-B.
+    rng : Generator, int or None
+        Randomness of the multistart starts.  ``"fast"`` is deterministic and
+        ignores it.
+    grid : array_like, shape (M, d), optional
+        Candidate source locations for the search (default
+        :func:`olsbayes.ml.grid.default_grid`); also the box of multistart
+        positions on a plate.
+    n_starts : int
+        Multistart: number of random starts (the paper's method; 20 by default).
+    n_restarts, restart_scale : int, float
+        Fast: number of perturbed restarts and their size in grid steps.
+    max_iter : int, optional
+        Iteration cap of each local optimisation (default 100 for LM, 500 for L-BFGS-B).
+    warn : bool
+        Warn :class:`~olsbayes.errors.ConvergenceWarning` when a fit did not converge.
+
+    Returns
+    -------
+    MLResult
+        Canonical-order estimates, log-likelihood, convergence flags, evaluation
+        counts and the inverse-Fisher covariance at each estimate.
+
+    Raises
+    ------
+    InputError
+        Bad model, data (wrong length, non-finite, more than 2-D), n_sources, method,
+        grid or option values.
+    """
+    arr, k = _check(model, data, n_sources, method)
+    gen = as_rng(rng)
+    g = default_grid(model) if grid is None else check_grid(model, grid)
+    batch = arr.ndim == 2
+    s = arr if batch else arr[None, :]
+    if method == "fast":
+        n_restarts = integer("n_restarts", n_restarts, low=0, high=64)
+        restart_scale = positive_float("restart_scale", restart_scale)
+        it = 100 if max_iter is None else integer("max_iter", max_iter, low=1)
+        out = fit_fast(model, s, k, g, n_restarts=n_restarts,
+                       restart_scale=restart_scale, max_iter=it)
+    else:
+        n_starts = integer("n_starts", n_starts, low=1)
+        it = 500 if max_iter is None else integer("max_iter", max_iter, low=1)
+        out = fit_multistart(model, s, k, g, gen, n_starts=n_starts, max_iter=it)
+    return _result(model, s, k, method, out, batch, warn)
+
+
+def _result(
+    model: Model, s: np.ndarray, k: int, method: str, out: LMOutcome, batch: bool, warn: bool
+) -> MLResult:
+    x = model.canonical(out.x)
+    ll = model.log_likelihood(x, s)
+    cov = _covariances(model, x)
+    if warn and not np.all(out.converged):
+        bad = int(np.sum(~out.converged))
+        warnings.warn(
+            f"{bad} of {out.converged.size} ML fit(s) ({method}) did not meet the "
+            "convergence criterion of the local optimiser; see MLResult.converged",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+    sel = (lambda a: a) if batch else (lambda a: a[0])
+    return MLResult(
+        params=sel(x),
+        log_likelihood=sel(ll),
+        converged=sel(out.converged),
+        n_evaluations=sel(out.n_evaluations),
+        cov=sel(cov),
+        method=method,
+        n_sources=k,
+        model=model,
+    )

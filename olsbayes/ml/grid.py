@@ -1,0 +1,101 @@
+"""Candidate source locations ("atoms") for the matched-filter search.
+
+An atom is the noiseless response of one unit-intensity source at a grid
+location: ``model.response([loc..., 1.0])``, shape (N,).  The grid only has to
+put every true source inside the basin of attraction of the subsequent
+Levenberg–Marquardt refinement, i.e. a fraction of the array's resolution.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import finite_array
+from ..errors import InputError
+from ..geometry import lonlat_to_unit, wrap_angle
+from ..model import Model
+
+__all__ = ["default_grid", "atoms", "grid_step"]
+
+
+def _ring_grid(model: Model, density: float) -> np.ndarray:
+    m = int(max(256, np.ceil(density * model.n_sensors)))
+    return (wrap_angle(2 * np.pi * (np.arange(m) + 0.5) / m))[:, None]
+
+
+def _sphere_grid(model: Model, density: float) -> np.ndarray:
+    m = int(np.clip(np.ceil(density * model.n_sensors), 1024, 8192))
+    k = np.arange(m) + 0.5
+    lat = np.arcsin(1.0 - 2.0 * k / m)
+    lon = wrap_angle(np.pi * (1.0 + 5.0**0.5) * k)
+    return np.column_stack([lon, lat])
+
+
+def _plate_grid(model: Model, density: float) -> np.ndarray:
+    pos = model.array.positions
+    lo, hi = pos[:, :2].min(axis=0), pos[:, :2].max(axis=0)
+    ext = float(max(np.max(hi - lo), 1e-12))
+    diffs = np.abs(pos[:, None, :2] - pos[None, :, :2]).ravel()
+    pitch = float(np.min(diffs[diffs > 1e-12 * ext])) if np.any(diffs > 1e-12 * ext) else ext
+    step = pitch / max(density / 8.0, 0.25)
+    pad = 0.5 * ext
+    xs = np.arange(lo[0] - pad, hi[0] + pad + 1e-9, step)
+    ys = np.arange(lo[1] - pad, hi[1] + pad + 1e-9, step)
+    zs = np.geomspace(0.5 * pitch, 2.0 * ext + pitch, 10)
+    gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
+    return np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
+
+
+def default_grid(model: Model, density: float = 12.0) -> np.ndarray:
+    """Default candidate locations, shape (M, d).
+
+    Ring: ``max(256, density * N)`` equally spaced angles.  Sphere: a Fibonacci
+    lattice of ``density * N`` directions (clipped to [1024, 8192]) over the whole
+    sphere.  Plate: an (x, y, z) grid over the plate's extent padded by half of it,
+    xy step ``8 * pitch / density``, 10 geometric z levels from pitch/2 to twice
+    the extent (override with ``grid=`` for other source volumes).
+    """
+    if model.kind == "angle":
+        return _ring_grid(model, density)
+    if model.kind == "lonlat":
+        return _sphere_grid(model, density)
+    return _plate_grid(model, density)
+
+
+def check_grid(model: Model, grid: object) -> np.ndarray:
+    """Validate a user grid of candidate locations, shape (M, d)."""
+    g = finite_array("grid", grid, ndim=(1, 2))
+    if g.ndim == 1:
+        g = g[:, None]
+    if g.shape[1] != model.n_loc:
+        raise InputError(
+            f"grid must have shape (M, {model.n_loc}) for {model.kind!r} sources; got {g.shape}"
+        )
+    if model.kind == "position" and np.any(g[:, 2] <= 0):
+        raise InputError("grid z coordinates must be > 0 (sources in front of the plate)")
+    if model.kind == "lonlat" and np.any(np.abs(g[:, 1]) > np.pi / 2):
+        raise InputError("grid latitudes must be in [-pi/2, pi/2]")
+    return g
+
+
+def atoms(model: Model, grid: np.ndarray) -> np.ndarray:
+    """Unit-intensity responses of the grid locations, shape (M, N)."""
+    x = np.column_stack([grid, np.ones(grid.shape[0])])
+    return model.response(x)
+
+
+def grid_step(model: Model, grid: np.ndarray) -> np.ndarray:
+    """A typical spacing of the grid per location coordinate, shape (d,).
+
+    Used as the scale of the perturbed restarts.  For directions this is the
+    angular spacing (rad) of a uniform grid of the same size.
+    """
+    m = grid.shape[0]
+    if model.kind == "angle":
+        return np.array([2 * np.pi / m])
+    if model.kind == "lonlat":
+        u = lonlat_to_unit(grid[:, 0], grid[:, 1])
+        return np.full(2, np.sqrt(4 * np.pi / m)) if u.size else np.ones(2)
+    span = np.ptp(grid, axis=0)
+    levels = np.array([max(len(np.unique(np.round(grid[:, j], 12))), 2) for j in range(3)])
+    return span / (levels - 1)

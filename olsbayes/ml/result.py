@@ -1,0 +1,97 @@
+"""The frozen result of a maximum-likelihood fit (single data vector or a batch)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validation import integer
+from ..errors import InputError
+from ..model import Model
+from ..scene import Scene
+
+__all__ = ["MLResult"]
+
+
+@dataclass(frozen=True, eq=False)
+class MLResult:
+    """Maximum-likelihood estimate(s) of Eq. 2.
+
+    A single fit (``data`` of shape (N,)) has scalar/1-D fields; a batch fit
+    (``data`` of shape (T, N)) has a leading trial axis T on every array field.
+
+    Attributes
+    ----------
+    params : ndarray, shape (P,) or (T, P)
+        Estimates in the model's flat layout ``[location..., intensity]`` per
+        source, in canonical order (:meth:`Model.canonical`: angles wrapped to
+        (-pi, pi], sources sorted by first location coordinate).  Intensities >= 0.
+    log_likelihood : ndarray, shape () or (T,)
+        Gaussian log-likelihood at the estimate.
+    converged : ndarray of bool, shape () or (T,)
+        True when the local optimiser met its stopping criterion; False fits
+        were also warned about with :class:`~olsbayes.errors.ConvergenceWarning`.
+    n_evaluations : ndarray of int, shape () or (T,)
+        Forward-model evaluations (responses plus Jacobians) spent per fit.
+    cov : ndarray, shape (P, P) or (T, P, P)
+        Inverse Fisher information at the estimate (the CRLB evaluated at the
+        estimate), rows/columns of unidentifiable parameters set to inf.
+    method : str
+        ``"fast"`` or ``"multistart"``.
+    n_sources : int
+        Number K of sources fitted.
+    model : Model
+        The model fitted (used by :attr:`scene`).
+    """
+
+    params: np.ndarray
+    log_likelihood: np.ndarray
+    converged: np.ndarray
+    n_evaluations: np.ndarray
+    cov: np.ndarray
+    method: str
+    n_sources: int
+    model: Model = field(repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("params", "log_likelihood", "converged", "n_evaluations", "cov"):
+            arr = np.array(getattr(self, name))
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+
+    @property
+    def is_batch(self) -> bool:
+        """True for a batch fit (leading trial axis)."""
+        return self.params.ndim == 2
+
+    @property
+    def n_trials(self) -> int:
+        """Number T of data vectors fitted (1 for a single fit)."""
+        return int(self.params.shape[0]) if self.is_batch else 1
+
+    @property
+    def std(self) -> np.ndarray:
+        """Fisher standard errors sqrt(diag(cov)), shape (P,) or (T, P)."""
+        return np.sqrt(np.diagonal(self.cov, axis1=-2, axis2=-1))
+
+    @property
+    def scene(self) -> Scene:
+        """The estimated :class:`~olsbayes.Scene` of a single fit."""
+        if self.is_batch:
+            raise InputError(
+                f"scene is defined for a single fit; this result holds {self.n_trials} "
+                "trials, use scene_at(i)"
+            )
+        return self.model.unpack(self.params)
+
+    def scene_at(self, i: int) -> Scene:
+        """The estimated scene of trial ``i`` (0 <= i < T) of a batch fit."""
+        if not self.is_batch:
+            integer("i", i, low=0, high=0)
+            return self.scene
+        i = integer("i", i, low=-self.n_trials, high=self.n_trials - 1)
+        return self.model.unpack(self.params[i])
+
+    def __len__(self) -> int:
+        return self.n_trials

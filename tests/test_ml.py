@@ -1,0 +1,167 @@
+"""Maximum-likelihood fits: efficiency against the CRLB, batch == loop, fast == multistart."""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+
+import olsbayes as ob
+from olsbayes.errors import ConvergenceWarning, InputError
+from olsbayes.ml import MLResult, fit_ml
+
+
+def _errors(model: ob.Model, est: np.ndarray, scene: ob.Scene) -> np.ndarray:
+    """Estimation errors (T, P) in canonical order, angles wrapped."""
+    err = est - model.canonical(model.pack(scene))
+    if model.kind != "position":
+        err[:, 0 :: model.n_loc + 1] = ob.wrap_angle(err[:, 0 :: model.n_loc + 1])
+    return err
+
+
+def _efficiency_check(model, scene, n_trials, seed, n_sources):
+    data = model.simulate(scene, seed, size=n_trials)
+    res = fit_ml(model, data, n_sources)
+    assert res.converged.all()
+    err = _errors(model, res.params, scene)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ob.KinkWarning)
+        bound = ob.crlb(model, scene.sorted()).std
+    eff = bound**2 / err.var(axis=0)
+    # sd of a variance ratio over T trials is sqrt(2/T); 4 sd = false alarm ~ 1e-4
+    tol = 4.0 * np.sqrt(2.0 / n_trials)
+    np.testing.assert_array_less(np.abs(eff - 1.0), tol)
+    # unbiased to within 4 Monte Carlo standard errors of the mean
+    np.testing.assert_array_less(np.abs(err.mean(axis=0)), 4.0 * bound / np.sqrt(n_trials))
+    return res
+
+
+def test_efficiency_single_source_ring():
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    scene = ob.Scene(directions=[0.7], intensities=[1.0])
+    _efficiency_check(model, scene, 400, 11, 1)
+
+
+def test_efficiency_fig3_two_sources_ring():
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    scene = ob.Scene(directions=[0.3, 0.3 + np.pi], intensities=[1.0, 0.2])
+    _efficiency_check(model, scene, 400, 12, 2)
+
+
+def test_efficiency_sphere_two_sources():
+    model = ob.Model(ob.Sphere.fibonacci(120), sigma=1e-2)
+    scene = ob.Scene(directions=[[0.4, 0.2], [2.5, -0.5]], intensities=[1.0, 0.6])
+    _efficiency_check(model, scene, 300, 13, 2)
+
+
+def test_efficiency_plate_one_source():
+    model = ob.Model(ob.Plate.grid(6, 6, pitch=1.0), sigma=1e-3)
+    scene = ob.Scene(positions=[[0.4, -0.3, 2.0]], intensities=[1.0])
+    _efficiency_check(model, scene, 300, 14, 1)
+
+
+def test_batch_equals_loop():
+    model = ob.Model(ob.Ring(24), sigma=3e-2)
+    scene = ob.Scene(directions=[-2.0, 0.1, 1.9], intensities=[1.0, 0.7, 0.5])
+    data = model.simulate(scene, 5, size=6)
+    batch = fit_ml(model, data, 3)
+    for i, s in enumerate(data):
+        one = fit_ml(model, s, 3)
+        np.testing.assert_allclose(one.params, batch.params[i], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(one.log_likelihood, batch.log_likelihood[i], rtol=1e-12)
+        np.testing.assert_allclose(one.cov, batch.cov[i], rtol=1e-8)
+        assert one.n_evaluations == batch.n_evaluations[i]
+        assert one.converged == batch.converged[i]
+
+
+@pytest.mark.parametrize(
+    "model, scene, k",
+    [
+        (ob.Model(ob.Ring(30), 1e-2),
+         ob.Scene(directions=[-1.5, 1.0], intensities=[1.0, 0.5]), 2),
+        (ob.Model(ob.Ring(30), 3e-2),
+         ob.Scene(directions=[-2.2, 0.0, 2.0], intensities=[0.8, 1.0, 0.6]), 3),
+        (ob.Model(ob.Sphere.fibonacci(80), 1e-2),
+         ob.Scene(directions=[[0.3, 0.2]], intensities=[1.0]), 1),
+    ],
+)
+def test_fast_matches_multistart_on_easy_scenes(model, scene, k):
+    data = model.simulate(scene, 21, size=3)
+    fast = fit_ml(model, data, k)
+    multi = fit_ml(model, data, k, method="multistart", rng=22, n_starts=10)
+    # the fast optimum is at least as good, and the same point when multistart found it
+    assert np.all(fast.log_likelihood >= multi.log_likelihood - 1e-7)
+    same = multi.log_likelihood >= fast.log_likelihood - 1e-7
+    assert same.any()
+    np.testing.assert_allclose(fast.params[same], multi.params[same], atol=1e-5)
+
+
+def test_intensities_nonnegative_with_extra_source():
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    data = model.simulate(ob.Scene(directions=[0.5], intensities=[1.0]), 3, size=20)
+    res = fit_ml(model, data, 3)
+    inten = res.params.reshape(20, 3, 2)[..., 1]
+    assert np.all(inten >= 0)
+    assert np.any(inten == 0)  # surplus sources are switched off, not made negative
+
+
+def test_result_fields_and_scene():
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    scene = ob.Scene(directions=[2.0, -1.0], intensities=[1.0, 0.5])
+    res = fit_ml(model, model.simulate(scene, 4), 2)
+    assert isinstance(res, MLResult) and not res.is_batch and res.n_trials == 1
+    assert res.params.shape == (4,) and res.cov.shape == (4, 4) and res.log_likelihood.shape == ()
+    np.testing.assert_allclose(res.params, model.canonical(res.params))
+    est = res.scene
+    assert est.n_sources == 2 and est.directions[0] < est.directions[1]
+    np.testing.assert_allclose(est.directions, scene.sorted().directions, atol=0.05)
+    np.testing.assert_allclose(res.log_likelihood, model.log_likelihood(res.params,
+                                                                         model.simulate(scene, 4)))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.method = "x"
+    with pytest.raises(ValueError):
+        res.params[0] = 1.0
+    batch = fit_ml(model, model.simulate(scene, 4, size=2), 2)
+    assert batch.scene_at(1).n_sources == 2 and len(batch) == 2
+    with pytest.raises(InputError, match="scene_at"):
+        batch.scene  # noqa: B018
+
+
+def test_nonconvergence_is_reported_and_warned():
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    data = model.simulate(ob.Scene(directions=[0.5, 2.0], intensities=[1, 1]), 6, size=4)
+    with pytest.warns(ConvergenceWarning, match="did not meet"):
+        res = fit_ml(model, data, 2, max_iter=1, n_restarts=0)
+    assert not res.converged.all()
+
+
+@pytest.mark.parametrize(
+    "data, k, method, match",
+    [
+        (np.zeros(29), 1, "fast", "last axis of length 30"),
+        (np.full(30, np.nan), 1, "fast", "finite"),
+        (np.zeros((2, 2, 30)), 1, "fast", r"\(N,\) or \(T, N\)"),
+        (np.zeros(30), 0, "fast", "n_sources"),
+        (np.zeros(30), 16, "fast", "n_sources"),
+        (np.zeros(30), 1.5, "fast", "n_sources"),
+        (np.zeros(30), 1, "newton", "method"),
+    ],
+)
+def test_bad_input(data, k, method, match):
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    with pytest.raises(InputError, match=match):
+        fit_ml(model, data, k, method=method)
+
+
+def test_bad_options():
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    with pytest.raises(InputError, match="model"):
+        fit_ml("ring", np.zeros(30), 1)
+    with pytest.raises(InputError, match="grid"):
+        fit_ml(model, np.zeros(30), 1, grid=np.zeros((5, 2)))
+    with pytest.raises(InputError, match="n_starts"):
+        fit_ml(model, np.zeros(30), 1, method="multistart", n_starts=0)
+    with pytest.raises(InputError, match="rng"):
+        fit_ml(model, np.zeros(30), 1, rng=-1)
