@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
-from .model import Model
-from .scene import Scene
+from ..errors import InputError
+from ..model import Model
+from ..scene import Scene
 
 __all__ = ["plot_response"]
 

@@ -1,0 +1,21 @@
+"""Figures (matplotlib, imported lazily): responses, corner plots, sky maps.
+
+Each plotting function takes ``ax=`` or ``fig=`` and returns the figure.  The
+submodules import matplotlib only when a function is called, so importing this
+package is cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__all__ = ["plot_response"]
+
+_LAZY = {"plot_response": "response"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        module = importlib.import_module(f".{_LAZY[name]}", __name__)
+        return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
