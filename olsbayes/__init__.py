@@ -25,6 +25,7 @@ from .ml import MLResult, fit_ml
 from .model import Model
 from .scene import Scene
 from .sensitivity import Cosine, CosinePower, CustomSensitivity, Sensitivity, get_sensitivity
+from .studies import run_study
 
 try:
     __version__ = version("olsbayes")
@@ -54,6 +55,8 @@ __all__ = [
     # maximum likelihood
     "fit_ml",
     "MLResult",
+    # studies
+    "run_study",
     # errors and warnings
     "OlsBayesError",
     "InputError",

@@ -1,0 +1,22 @@
+"""Monte Carlo studies: sweeps over grids of settings on a local pool or a Dask cluster.
+
+:func:`run_study` sends chunks of trials to an executor, checkpoints every
+finished chunk so a killed study resumes, and returns an ``xarray.Dataset``.
+"""
+
+from ._work import vectorized
+from .checkpoint import Checkpoint
+from .executors import EXECUTORS, make_backend
+from .runner import run_study, trial_name
+from .seeds import study_entropy, trial_seed
+
+__all__ = [
+    "run_study",
+    "vectorized",
+    "Checkpoint",
+    "make_backend",
+    "EXECUTORS",
+    "study_entropy",
+    "trial_seed",
+    "trial_name",
+]

@@ -1,0 +1,173 @@
+"""Where chunks of trials run: in process, a local pool, Dask, or any Executor.
+
+Every backend offers the same three operations -- ``submit(fn, *args)``,
+``wait_first(pending)`` and ``close()`` -- so the runner keeps a bounded window
+of chunks in flight and checkpoints each one as soon as it finishes.  Dask
+(``distributed``) is an optional extra, imported only when it is used.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+from collections.abc import Callable
+from typing import Any
+
+from .._validation import _short, integer
+from ..errors import InputError
+
+__all__ = ["Backend", "make_backend", "EXECUTORS"]
+
+#: Executor names accepted by :func:`make_backend`.
+EXECUTORS = ("serial", "threads", "processes", "dask")
+
+
+class _Deferred:
+    """A future computed when its result is first asked for (serial backend)."""
+
+    def __init__(self, fn: Callable, args: tuple):
+        self._fn, self._args = fn, args
+
+    def result(self) -> Any:
+        return self._fn(*self._args)
+
+    def cancel(self) -> bool:
+        return True
+
+
+class Backend:
+    """Uniform face of an executor.
+
+    Attributes
+    ----------
+    name : str
+        ``"serial"``, ``"threads"``, ``"processes"``, ``"dask"`` or ``"executor"``.
+    n_workers : int
+        Parallel slots (used to size chunks and the in-flight window).
+    """
+
+    def __init__(self, name: str, n_workers: int, submit: Callable, kind: str,
+                 closer: Callable[[], None] | None = None):
+        self.name, self.n_workers = name, max(1, int(n_workers))
+        self._submit, self._kind, self._closer = submit, kind, closer
+
+    def submit(self, fn: Callable, *args: Any) -> Any:
+        """Schedule ``fn(*args)``; return a future-like object with ``result()``."""
+        return self._submit(fn, *args)
+
+    def wait_first(self, pending: list) -> tuple[list, list]:
+        """Block until at least one of ``pending`` is done; return (done, still pending)."""
+        if self._kind == "cf" or (
+            self._kind == "any" and all(isinstance(f, cf.Future) for f in pending)
+        ):
+            done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+        elif self._kind == "dask":
+            from distributed import wait
+
+            done = wait(pending, return_when="FIRST_COMPLETED").done
+        else:  # serial or foreign futures: in submission order
+            return [pending[0]], pending[1:]
+        ids = {id(f) for f in done}
+        return [f for f in pending if id(f) in ids], [f for f in pending if id(f) not in ids]
+
+    def close(self) -> None:
+        """Shut down what this backend started (never a user's executor or client)."""
+        if self._closer is not None:
+            self._closer()
+            self._closer = None
+
+
+def _local_workers(workers: int | None) -> int:
+    if workers is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+    return integer("workers", workers, low=1)
+
+
+def _is_dask_client(obj: object) -> bool:
+    return type(obj).__module__.split(".")[0] == "distributed" and hasattr(obj, "submit")
+
+
+def _dask_backend(client: Any, closer: Callable[[], None] | None) -> Backend:
+    nthreads = sum(client.nthreads().values()) or 1
+
+    def submit(fn: Callable, *args: Any) -> Any:
+        return client.submit(fn, *args, pure=False)
+
+    return Backend("dask", nthreads, submit, "dask", closer)
+
+
+def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:  # pragma: no cover - depends on the environment
+        raise InputError(
+            "executor='dask' needs the optional dependency dask.distributed: "
+            "pip install 'olsbayes[dask]'"
+        ) from None
+    if scheduler is not None:
+        if not isinstance(scheduler, str) or not scheduler:
+            raise InputError(f"scheduler must be an address such as 'tcp://host:8786'; "
+                             f"got {_short(scheduler)}")
+        try:
+            client = Client(scheduler, timeout="20s")
+        except OSError as exc:
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
+        return _dask_backend(client, client.close)
+    cluster = LocalCluster(n_workers=_local_workers(workers), threads_per_worker=1,
+                           processes=True, dashboard_address=None)
+    client = Client(cluster)
+
+    def closer() -> None:
+        client.close()
+        cluster.close()
+
+    return _dask_backend(client, closer)
+
+
+def make_backend(executor: object = "processes", *, workers: int | None = None,
+                 scheduler: str | None = None) -> Backend:
+    """Build the backend for ``executor``.
+
+    Parameters
+    ----------
+    executor : str, distributed.Client or concurrent.futures.Executor-like
+        ``"serial"`` (in this process, in order), ``"threads"``, ``"processes"``
+        (a local ``ProcessPoolExecutor``, forkserver start), ``"dask"`` (a client
+        to ``scheduler``, or a fresh ``LocalCluster`` of ``workers`` processes when
+        no scheduler is given), a ``distributed.Client`` (e.g. connected to a
+        dask-jobqueue cluster), or any object with ``submit(fn, *args)`` returning
+        futures with ``result()``.  Objects passed in are never shut down here.
+    workers : int, optional
+        Pool size for ``"threads"``, ``"processes"`` and a local Dask cluster;
+        default the number of usable cores.
+    scheduler : str, optional
+        Dask scheduler address (only with ``executor="dask"``).
+    """
+    if scheduler is not None and executor != "dask":
+        raise InputError(f"scheduler is only used with executor='dask'; got executor={executor!r}")
+    if isinstance(executor, str):
+        if executor == "serial":
+            return Backend("serial", 1, lambda fn, *args: _Deferred(fn, args), "serial")
+        if executor == "threads":
+            n = _local_workers(workers)
+            pool = cf.ThreadPoolExecutor(max_workers=n)
+            return Backend("threads", n, pool.submit, "cf", pool.shutdown)
+        if executor == "processes":
+            n = _local_workers(workers)
+            pool = cf.ProcessPoolExecutor(max_workers=n,
+                                          mp_context=multiprocessing.get_context("forkserver"))
+            return Backend("processes", n, pool.submit, "cf",
+                           lambda: pool.shutdown(cancel_futures=True))
+        if executor == "dask":
+            return _start_dask(scheduler, workers)
+        raise InputError(f"executor must be one of {EXECUTORS}, a distributed.Client or an "
+                         f"object with a submit() method; got {executor!r}")
+    if _is_dask_client(executor):
+        return _dask_backend(executor, None)
+    if callable(getattr(executor, "submit", None)):
+        n = getattr(executor, "_max_workers", None) or _local_workers(workers)
+        return Backend("executor", n, executor.submit, "any")
+    raise InputError(f"executor must be one of {EXECUTORS}, a distributed.Client or an object "
+                     f"with a submit() method; got {_short(executor)}")

@@ -1,0 +1,234 @@
+"""Monte Carlo studies: reproducibility across executors, checkpoint/resume, bad input."""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from olsbayes import InputError
+from olsbayes.studies import run_study, trial_seed, vectorized
+from olsbayes.studies.checkpoint import _decode_chunk, _read_frames
+from olsbayes.studies.trials import noise_check, noise_check_batch
+
+GRID = {"sigma": [0.01, 0.1], "n_sensors": [8, 16]}
+
+
+def _serial(**kw):
+    kw.setdefault("rng", 7)
+    return run_study(noise_check, GRID, 24, executor="serial", progress=False, **kw)
+
+
+# -- module-level trials for the bad-input tests (run serially) ------------------
+def returns_list(settings, rng):
+    return [1.0]
+
+
+def returns_text(settings, rng):
+    return {"x": "abc"}
+
+
+def ragged(settings, rng):
+    return {"x": np.zeros(int(rng.integers(1, 3)))}
+
+
+def fails_on_cell(settings, rng):
+    if settings["sigma"] == 0.1:
+        raise ZeroDivisionError("boom")
+    return {"x": rng.normal()}
+
+
+@vectorized
+def short_batch(settings, rngs):
+    return {"x": np.zeros(len(rngs) - 1)}
+
+
+def test_same_numbers_on_every_executor_worker_count_and_chunking():
+    from distributed import Client, LocalCluster
+
+    ref = _serial()
+    procs = run_study(noise_check, GRID, 24, executor="processes", workers=2, rng=7,
+                      chunk_size=5, progress=False)
+    assert procs.identical(ref)
+    with cf.ThreadPoolExecutor(3) as pool:
+        threads = run_study(noise_check, GRID, 24, executor=pool, rng=7, chunk_size=24,
+                            progress=False)
+        assert pool.submit(int, 1).result() == 1  # a user's executor is left running
+    assert threads.identical(ref)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        dask = run_study(noise_check, GRID, 24, executor=client, rng=7, chunk_size=7,
+                         progress=False)
+    assert dask.identical(ref)
+    # the vectorised form draws the same streams: same scenes and noise
+    batch = run_study(noise_check_batch, GRID, 24, executor="serial", rng=7, chunk_size=9,
+                      progress=False)
+    np.testing.assert_array_equal(batch.theta0, ref.theta0)
+    np.testing.assert_allclose(batch.chi2, ref.chi2, rtol=1e-12)
+
+
+def test_trial_streams_are_the_spawned_children():
+    child = np.random.SeedSequence(7).spawn(4)[3].spawn(24)[5]
+    np.testing.assert_array_equal(trial_seed(7, 3, 5).generate_state(4), child.generate_state(4))
+    ds = _serial()
+    # cell 3 = (sigma 0.1, n_sensors 16): its trial 5 starts with the scene's direction draw
+    first = np.random.default_rng(child).uniform(-np.pi, np.pi)
+    assert ds.theta0.isel(sigma=1, n_sensors=1, trial=5).item() == first
+
+
+def test_dataset_layout_statistics_and_netcdf_roundtrip(tmp_path):
+    out = tmp_path / "study.nc"
+    ds = run_study(noise_check, GRID, 400, fixed={"n_sources": 2, "intensity": 0.5},
+                   executor="serial", rng=11, out=out, progress=False)
+    assert ds.chi2.dims == ("sigma", "n_sensors", "trial")
+    assert ds.moments.dims == ("sigma", "n_sensors", "trial", "moments_dim0")
+    assert ds.attrs["seed"] == "11" and ds.attrs["n_trials"] == 400
+    assert "noise_check" in ds.attrs["trial_function"]
+    assert '"n_sources": 2' in ds.attrs["fixed_settings"]
+    # chi2 of the truth ~ chi2_N: mean N within 4 Monte Carlo standard errors sqrt(2N/T)
+    for n in GRID["n_sensors"]:
+        mean = ds.chi2.sel(n_sensors=n).mean("trial").values
+        assert np.all(np.abs(mean - n) < 4 * np.sqrt(2 * n / 400))
+    back = xr.load_dataset(out, engine="h5netcdf")
+    assert back.identical(ds)
+
+
+def test_bad_inputs_are_refused_with_the_argument_named(tmp_path):
+    cases = [
+        (dict(grid=[1, 2]), "grid must be a dict"),
+        (dict(grid={"sigma": []}), "at least one value"),
+        (dict(grid={"sigma": [0.1, "a"]}), "mixes value types"),
+        (dict(grid={"sigma": [0.1, 0.1]}), "repeated values"),
+        (dict(grid={"trial": [1]}), "identifiers other than"),
+        (dict(grid={"sigma": [float("nan")]}), "finite"),
+        (dict(n_trials=0), "n_trials must be in"),
+        (dict(chunk_size=0), "chunk_size must be in"),
+        (dict(executor="gpu"), "executor must be one of"),
+        (dict(executor="processes", scheduler="tcp://x:1"), "scheduler is only used"),
+        (dict(rng=-1), "seed must be >= 0"),
+        (dict(rng=np.random.SeedSequence(1).spawn(1)[0]), "root SeedSequence"),
+        (dict(fixed={"sigma": 1.0}), "both a grid axis and fixed"),
+        (dict(progress="yes"), "progress must be"),
+    ]
+    for extra, message in cases:
+        kw = dict(trial=noise_check, grid={"sigma": [0.1], "n_sensors": [8]}, n_trials=2,
+                  executor="serial", progress=False)
+        kw.update(extra)
+        with pytest.raises(InputError, match=message):
+            run_study(**kw)
+    with pytest.raises(InputError, match="cannot be sent to processes workers"):
+        run_study(lambda s, r: {"x": 1.0}, {}, 2, executor="processes", workers=1,
+                  progress=False)
+    for fn, message in [(returns_list, "non-empty dict"), (returns_text, "numbers or bools"),
+                        (ragged, "fixed shape"), (short_batch, "leading axis 4")]:
+        with pytest.raises(InputError, match=message):
+            run_study(fn, {}, 4, executor="serial", chunk_size=4, rng=1, progress=False)
+
+
+def test_trial_error_propagates_and_finished_chunks_stay_checkpointed(tmp_path):
+    ckpt = tmp_path / "c.ckpt"
+    with pytest.raises(ZeroDivisionError) as info:
+        run_study(fails_on_cell, {"sigma": [0.01, 0.1]}, 6, executor="serial", chunk_size=3,
+                  checkpoint=ckpt, rng=2, progress=False)
+    assert "cell 1" in "".join(getattr(info.value, "__notes__", []))
+    frames, _, _ = _read_frames(ckpt)
+    assert sorted(int(_decode_chunk(p).cell) for k, p in frames[1:]) == [0, 0]
+
+
+def test_checkpoint_from_other_settings_is_refused(tmp_path):
+    ckpt = tmp_path / "c.ckpt"
+    ref = _serial(checkpoint=ckpt)
+    again = _serial(checkpoint=ckpt)  # a complete checkpoint: nothing runs, same result
+    assert again.identical(ref)
+    assert _serial(checkpoint=ckpt, rng=None).identical(ref)  # recorded seed adopted
+    for kw, diff in [(dict(rng=8), "seed"), (dict(fixed={"intensity": 2.0}), "fixed")]:
+        with pytest.raises(InputError, match=f"other settings .*{diff}"):
+            _serial(checkpoint=ckpt, **kw)
+    with pytest.raises(InputError, match="n_trials"):
+        run_study(noise_check, GRID, 25, executor="serial", rng=7, checkpoint=ckpt,
+                  progress=False)
+    with pytest.raises(InputError, match="trial"):
+        run_study(noise_check_batch, GRID, 24, executor="serial", rng=7, checkpoint=ckpt,
+                  progress=False)
+    with pytest.raises(InputError, match="grid"):
+        run_study(noise_check, {**GRID, "sigma": [0.01, 0.2]}, 24, executor="serial", rng=7,
+                  checkpoint=ckpt, progress=False)
+    junk = tmp_path / "junk.ckpt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="not an olsbayes study checkpoint"):
+        _serial(checkpoint=junk)
+
+
+def test_torn_last_chunk_is_dropped_and_rerun(tmp_path):
+    ckpt = tmp_path / "c.ckpt"
+    ref = _serial(checkpoint=ckpt, chunk_size=8)
+    data = ckpt.read_bytes()
+    frames, end, _ = _read_frames(ckpt)
+    last = len(frames[-1][1]) + 17
+    ckpt.write_bytes(data[: end - last // 2])  # half of the last frame survives
+    with pytest.warns(RuntimeWarning, match="torn last chunk"):
+        assert _serial(checkpoint=ckpt, chunk_size=5).identical(ref)
+
+
+SCRIPT = textwrap.dedent(
+    """
+    import sys, time
+    from olsbayes.studies import run_study
+    from olsbayes.studies.trials import noise_check
+
+    def slow_trial(settings, rng):
+        time.sleep(0.03)
+        return noise_check(settings, rng)
+
+    if __name__ == "__main__":
+        ckpt = None if sys.argv[1] == "-" else sys.argv[1]
+        run_study(slow_trial, {"sigma": [0.01, 0.1], "n_sensors": [8, 16]}, 30,
+                  executor="processes", workers=2, chunk_size=3, rng=5, checkpoint=ckpt,
+                  out=sys.argv[2], progress=False)
+    """
+)
+
+
+def _count_trials(ckpt: Path) -> np.ndarray:
+    frames, _, _ = _read_frames(ckpt)
+    counts = np.zeros((4, 30), int)
+    for _, payload in frames[1:]:
+        rec = _decode_chunk(payload)
+        np.add.at(counts[rec.cell], rec.trials, 1)
+    return counts
+
+
+def test_study_killed_with_sigkill_resumes_without_loss_or_duplicates(tmp_path):
+    script = tmp_path / "study_script.py"
+    script.write_text(SCRIPT)
+    ckpt, out, ref = tmp_path / "s.ckpt", tmp_path / "s.nc", tmp_path / "ref.nc"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen([sys.executable, str(script), str(ckpt), str(out)], env=env,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and proc.poll() is None:
+            if ckpt.exists() and _count_trials(ckpt).sum() >= 15:
+                break
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    partial = _count_trials(ckpt)
+    assert proc.returncode == -signal.SIGKILL and not out.exists()
+    assert 0 < partial.sum() < 120 and partial.max() == 1
+    subprocess.run([sys.executable, str(script), str(ckpt), str(out)], env=env, check=True)
+    subprocess.run([sys.executable, str(script), "-", str(ref)], env=env, check=True)
+    counts = _count_trials(ckpt)
+    assert np.all(counts == 1)  # every trial exactly once: none lost, none duplicated
+    resumed, fresh = xr.load_dataset(out), xr.load_dataset(ref)
+    assert resumed.identical(fresh)
