@@ -1,0 +1,137 @@
+"""When a Laplace evidence is not to be trusted, and why.
+
+The Laplace approximation needs one Gaussian mode per labelling, well inside the
+prior's support.  It fails where the Fisher matrix is singular or nearly so
+(sources closer than the array resolves: on a ring of even N every pair closer
+than one sensor spacing 2 pi/N is unresolvable and only from 2 spacings is every
+placement resolvable), where a source is weak (its intensity a few sd from the
+prior's edge at 0, its direction barely localised), and where the Gaussian is
+wider than the prior.  Each check returns a short human-readable reason.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..crlb import bound_covariance
+from ..geometry import lonlat_to_unit
+from ..model import Model
+
+__all__ = ["sensor_spacing", "min_separation", "laplace_trust", "THRESHOLDS"]
+
+#: Default thresholds of :func:`laplace_trust`.
+THRESHOLDS = {
+    "separation": 2.0,  # sensor spacings
+    "snr": 5.0,  # intensity / its sd
+    "correlation": 0.98,  # largest |correlation| between parameters
+}
+
+
+def sensor_spacing(model: Model) -> float:
+    """Typical distance between neighbouring sub-sensors, in source-location units.
+
+    Angles (ring, sphere): the median angle (rad) between each normal and its
+    nearest neighbour -- 2 pi / N on a uniform ring.  Positions (plate): the
+    median nearest-neighbour distance of the sub-sensor positions.
+    """
+    if model.kind == "position":
+        pts = model.array.positions
+        d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+    else:
+        nrm = model.array.normals
+        d = np.arccos(np.clip(nrm @ nrm.T, -1.0, 1.0))
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(axis=1)))
+
+
+def min_separation(model: Model, params: np.ndarray) -> tuple[float, tuple[int, int]]:
+    """Smallest distance between two sources of ``params`` and the pair's indices.
+
+    Ring: circular angle difference (rad); sphere: great-circle angle (rad);
+    plate: Euclidean distance.  ``(inf, (-1, -1))`` for fewer than two sources.
+    """
+    k = model.n_sources_of(params)
+    if k < 2:
+        return np.inf, (-1, -1)
+    loc = np.asarray(params, float).reshape(k, model.n_loc + 1)[:, :-1]
+    if model.kind == "position":
+        d = np.linalg.norm(loc[:, None, :] - loc[None, :, :], axis=-1)
+    else:
+        if model.kind == "angle":
+            th = loc[:, 0]
+            u = np.column_stack([np.cos(th), np.sin(th)])
+        else:
+            lon, lat = loc[:, 0], loc[:, 1]
+            u = lonlat_to_unit(lon, lat)
+        d = np.arccos(np.clip(u @ u.T, -1.0, 1.0))
+    np.fill_diagonal(d, np.inf)
+    i, j = np.unravel_index(np.argmin(d), d.shape)
+    return float(d[i, j]), (int(min(i, j)), int(max(i, j)))
+
+
+def laplace_trust(
+    model: Model,
+    params: np.ndarray,
+    fisher: np.ndarray,
+    *,
+    thresholds: dict[str, float] | None = None,
+) -> tuple[tuple[str, ...], dict[str, float]]:
+    """Reasons not to trust the Laplace evidence at an ML point (empty: trusted).
+
+    Parameters
+    ----------
+    model : Model
+    params : ndarray, shape (P,)
+        ML point.
+    fisher : ndarray, shape (P, P)
+        Fisher matrix at ``params``.
+    thresholds : dict, optional
+        Overrides of :data:`THRESHOLDS`.
+
+    Returns
+    -------
+    reasons : tuple of str
+    stats : dict
+        ``separation`` (sensor spacings), ``min_snr``, ``max_correlation``,
+        ``condition`` (of the correlation matrix) -- NaN where not defined.
+    """
+    th = {**THRESHOLDS, **(thresholds or {})}
+    k = model.n_sources_of(params)
+    reasons: list[str] = []
+    stats = {"separation": np.inf, "min_snr": np.inf, "max_correlation": 0.0, "condition": 1.0}
+    if k == 0:
+        return (), stats
+    cov, _, singular = bound_covariance(fisher)
+    if singular.any():
+        names = [n for n, s in zip(model.param_names(k), singular) if s]
+        reasons.append(f"singular Fisher matrix ({', '.join(names)} unidentifiable)")
+        stats.update(min_snr=np.nan, max_correlation=1.0, condition=np.inf)
+    else:
+        sd = np.sqrt(np.diag(cov))
+        corr = cov / np.outer(sd, sd)
+        off = np.abs(corr - np.eye(len(sd)))
+        stats["max_correlation"] = float(off.max()) if len(sd) > 1 else 0.0
+        w = np.linalg.eigvalsh(corr)
+        stats["condition"] = float(w.max() / w.min()) if w.min() > 0 else np.inf
+        if stats["max_correlation"] > th["correlation"]:
+            i, j = np.unravel_index(np.argmax(off), off.shape)
+            nm = model.param_names(k)
+            reasons.append(
+                f"ill-conditioned Fisher matrix (corr({nm[i]}, {nm[j]}) = {corr[i, j]:+.3f})"
+            )
+        inten = np.asarray(params, float).reshape(k, -1)[:, -1]
+        snr = inten / sd.reshape(k, -1)[:, -1]
+        stats["min_snr"] = float(snr.min())
+        if snr.min() < th["snr"]:
+            q = int(np.argmin(snr))
+            reasons.append(f"weak source I[{q}] = {inten[q]:.3g} ({snr[q]:.1f} sd above 0)")
+    sep, (i, j) = min_separation(model, params)
+    if np.isfinite(sep):
+        sep_h = sep / sensor_spacing(model)
+        stats["separation"] = sep_h
+        if sep_h < th["separation"]:
+            reasons.append(
+                f"sources {i} and {j} {sep_h:.2f} sensor spacings apart "
+                f"(< {th['separation']:g}: near the resolution limit)"
+            )
+    return tuple(reasons), stats

@@ -1,0 +1,104 @@
+"""Per-K work of select_k: ML fit, Laplace, nested sampling, information criteria."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import EvidenceWarning
+from ..model import Model
+from .diagnostics import laplace_trust
+from .laplace import model_laplace, noise_log_evidence
+from .nested import nested_log_evidence
+
+__all__ = ["KWork", "noise_work", "laplace_work", "nested_work", "information_criterion"]
+
+
+@dataclass(frozen=True, eq=False)
+class KWork:
+    """Internal per-K record (becomes a :class:`~olsbayes.select.result.KEvidence`)."""
+
+    k: int
+    value: float
+    error: float
+    method: str
+    log_likelihood: float
+    params: np.ndarray
+    laplace: float = math.nan
+    reasons: tuple[str, ...] = ()
+    n_calls: int = 0
+    seconds: float = 0.0
+    fit: Any = None
+    stats: Mapping[str, float] | None = None
+
+
+def noise_work(model: Model, data: np.ndarray) -> KWork:
+    """K = 0: the closed-form evidence log N(data; 0, sigma^2 I)."""
+    t0 = time.perf_counter()
+    log_z = float(noise_log_evidence(data, model.sigma))
+    return KWork(0, log_z, 0.0, "closed-form", log_z, np.zeros(0), laplace=log_z,
+                 seconds=time.perf_counter() - t0)
+
+
+def laplace_work(model: Model, k: int, fitted: tuple, prior,
+                 thresholds: Mapping[str, float] | None, seconds: float = 0.0) -> KWork:
+    """Laplace evidence of K sources at the ML point ``fitted`` = (fit, params, log L, origin)
+    and the reasons not to trust it."""
+    t0 = time.perf_counter()
+    fit, params, ll, _ = fitted
+    log_z, fisher, _ = model_laplace(model, params, ll, prior)
+    reasons, stats = laplace_trust(model, params, fisher, thresholds=dict(thresholds or {}))
+    log_z = float(log_z)
+    if np.isfinite(log_z) and log_z > ll:
+        reasons = reasons + ("Laplace exceeds the likelihood maximum (Gaussian wider "
+                             "than the prior)",)
+    if not np.isfinite(prior.log_prob(params)):
+        reasons = reasons + ("ML point outside the prior's support",)
+    n_calls = int(np.sum(getattr(fit, "n_evaluations", 0)))
+    return KWork(k, log_z, math.nan, "laplace", ll, params, laplace=log_z, reasons=reasons,
+                 n_calls=n_calls, seconds=seconds + time.perf_counter() - t0, fit=fit,
+                 stats=stats)
+
+
+def nested_work(model: Model, data: np.ndarray, work: KWork, prior,
+                rng: np.random.Generator, *, maxcall: int, nlive: int | None) -> KWork:
+    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
+    data = np.asarray(data, float)
+
+    def log_like(x: np.ndarray) -> float:
+        return float(model.log_likelihood(x, data))
+
+    out = nested_log_evidence(log_like, prior.ppf, prior.n_params,
+                              periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
+                              nlive=nlive)
+    lap = work.laplace
+    if not work.reasons and np.isfinite(lap):
+        gap = abs(out.log_evidence - lap)
+        if gap > 3 * out.error + 0.5:
+            warnings.warn(
+                f"K={work.k}: Laplace log Z = {lap:.2f} and nested log Z = "
+                f"{out.log_evidence:.2f} +- {out.error:.2f} disagree by {gap:.2f} nats "
+                "although the Laplace diagnostics passed", EvidenceWarning, stacklevel=3)
+    reasons = work.reasons if out.converged else work.reasons + (
+        f"nested sampling stopped at maxcall={maxcall}",)
+    return dataclasses.replace(
+        work, value=out.log_evidence, error=out.error, method="nested", reasons=reasons,
+        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds)
+
+
+def information_criterion(model: Model, k: int, fitted: tuple, method: str,
+                          seconds: float = 0.0) -> KWork:
+    """Pseudo-evidence -BIC/2 = log L - (P/2) log N, or -AIC/2 = log L - P."""
+    fit, params, ll, _ = fitted
+    p = params.size
+    penalty = 0.5 * p * math.log(model.n_sensors) if method == "bic" else float(p)
+    n_calls = int(np.sum(getattr(fit, "n_evaluations", 0)))
+    return KWork(k, ll - penalty, math.nan, method, ll, params, n_calls=n_calls,
+                 seconds=seconds, fit=fit)
