@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -71,5 +72,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("olsbayes: interrupted", file=sys.stderr)
             return 130
-        except BrokenPipeError:  # e.g. `olsbayes simulate | head`
+        except BrokenPipeError:  # e.g. `olsbayes simulate | head`: stop quietly
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError):  # pragma: no cover - stdout already gone
+                pass
             return 0

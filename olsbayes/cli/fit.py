@@ -2,11 +2,12 @@
 
 Readings come from --data FILE, else from the config's [data] section (a file
 or a simulation of [scene]).  K comes from --n-sources, else from [scene].
+A file with T rows is fitted row by row in one batched call.
 
 Example:
   olsbayes simulate --out readings.txt
   olsbayes fit --data readings.txt --n-sources 2
-  olsbayes fit scene.toml --json
+  olsbayes fit scene.toml --json --method multistart --seed 3
 """
 
 from __future__ import annotations
@@ -15,12 +16,24 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import read_readings
 from ..errors import InputError
-from ._common import add_command, add_config_args, add_json_arg, add_seed_arg, load_cli_config
+from ..model import Model
+from ..scene import Scene
+from ._common import (
+    add_command,
+    add_config_args,
+    add_json_arg,
+    add_seed_arg,
+    emit,
+    format_table,
+    load_cli_config,
+)
 
-__all__ = ["register", "run"]
+__all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs"]
 
 
 def register(subparsers: Any) -> None:
@@ -31,40 +44,106 @@ def register(subparsers: Any) -> None:
                    help="readings (text/CSV/.npy, one row of N readings per measurement)")
     p.add_argument("--n-sources", type=int, default=None, metavar="K",
                    help="number of sources to fit (default: as many as in [scene])")
-    add_seed_arg(p, help="seed of the multi-start optimiser (and of a simulation)")
+    p.add_argument("--method", choices=("fast", "multistart"), default="fast",
+                   help="fast (polynomial-time, default) or multistart (the paper's baseline)")
+    add_seed_arg(p, help="seed of the multistart starts and of a [data] simulation")
     add_json_arg(p)
     p.set_defaults(run=run)
 
 
-def load_fit_inputs(args: argparse.Namespace) -> tuple[Any, Any, Any, int]:
+def load_fit_inputs(args: argparse.Namespace) -> tuple[Model, Scene | None, np.ndarray, int]:
     """(model, truth scene or None, readings, K) from CONFIG, --data, --n-sources."""
     cfg = load_cli_config(args, required=("sensor",))
     model = model_from_config(cfg)
     truth = scene_from_config(cfg, model) if "scene" in cfg else None
     if args.data is not None:
         data = read_readings(args.data, model.n_sensors, name="--data")
+        if "scene" in cfg and args.config is None:
+            truth = None  # the default scene is no truth for the user's readings
     else:
         data = data_from_config(cfg, model, truth, rng=args.seed)
         if data is None:
             raise InputError("fit needs readings: give --data FILE or a [data] section")
     if args.n_sources is not None:
         k = args.n_sources
-    elif truth is not None:
+    elif truth is not None and truth.n_sources > 0:
         k = truth.n_sources
     else:
         raise InputError("fit needs the number of sources: give --n-sources K or a [scene]")
-    if not 1 <= k <= model.n_sensors // 2:
-        raise InputError(
-            f"--n-sources must be in [1, {model.n_sensors // 2}] (N/2 for N = "
-            f"{model.n_sensors} sub-sensors); got {k}"
-        )
+    if truth is not None and truth.n_sources != k:
+        truth = None  # a truth with another K cannot be compared source by source
     return model, truth, data, k
 
 
+def _rows(model: Model, params: np.ndarray, std: np.ndarray) -> list[list[Any]]:
+    k = model.n_sources_of(params)
+    blocks, sds = params.reshape(k, -1), std.reshape(k, -1)
+    return [[*blocks[i, :-1], blocks[i, -1], *sds[i, :-1], sds[i, -1]] for i in range(k)]
+
+
+def fit_payload(model: Model, result: Any, truth: Scene | None) -> dict[str, Any]:
+    """JSON-ready dictionary of an :class:`~olsbayes.ml.MLResult`."""
+    payload: dict[str, Any] = {
+        "model": repr(model),
+        "method": result.method,
+        "n_sources": result.n_sources,
+        "param_names": model.param_names(result.n_sources),
+        "params": result.params,
+        "std": result.std,
+        "log_likelihood": result.log_likelihood,
+        "converged": result.converged,
+    }
+    if truth is not None:
+        x_true = model.canonical(model.pack(truth))
+        payload["truth"] = x_true
+        payload["error_over_std"] = _z(model, result.params, x_true, result.std)
+    return payload
+
+
+def _z(model: Model, est: np.ndarray, true: np.ndarray, std: np.ndarray) -> np.ndarray:
+    err = np.asarray(est) - true
+    if model.kind != "position":
+        blocks = err.reshape(err.shape[:-1] + (-1, model.n_loc + 1))
+        blocks[..., 0] = np.angle(np.exp(1j * blocks[..., 0]))  # wrap angle errors
+        err = blocks.reshape(err.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return err / std
+
+
+def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = None) -> str:
+    """Estimate +- Fisher std per source (and the truth, when known) as a table."""
+    names = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}[
+        model.kind
+    ]
+    params = result.params if row is None else result.params[row]
+    std = result.std if row is None else result.std[row]
+    header = ["k", *names, "I", *(f"sd({n})" for n in names), "sd(I)"]
+    rows = [[i, *r] for i, r in enumerate(_rows(model, params, std))]
+    lines = [format_table(header, rows)]
+    if truth is not None:
+        x_true = model.canonical(model.pack(truth))
+        z = _z(model, params, x_true, std).reshape(result.n_sources, -1)
+        t_rows = [[i, *x_true.reshape(result.n_sources, -1)[i], *z[i]]
+                  for i in range(result.n_sources)]
+        lines += ["Truth and error / sd:", format_table(
+            ["k", *names, "I", *(f"err/sd({n})" for n in names), "err/sd(I)"], t_rows, 4)]
+    return "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
-    load_fit_inputs(args)
-    try:
-        from ..ml import fit_ml  # noqa: F401
-    except ImportError:
-        raise InputError("fit: the ML engine olsbayes.ml is not available") from None
-    raise InputError("fit: not wired to olsbayes.ml.fit_ml yet")
+    from ..ml import fit_ml
+
+    model, truth, data, k = load_fit_inputs(args)
+    result = fit_ml(model, data, k, method=args.method, rng=args.seed)
+    payload = fit_payload(model, result, truth)
+    if result.is_batch:
+        blocks = [f"row {t}: log-likelihood {float(result.log_likelihood[t]):.6g}\n"
+                  + fit_text(model, result, truth, row=t) for t in range(result.n_trials)]
+    else:
+        blocks = [f"log-likelihood {float(result.log_likelihood):.6g}\n"
+                  + fit_text(model, result, truth)]
+    head = (f"{model!r}\nML fit ({result.method}) of K = {k} source(s); sd = Fisher "
+            "(CRLB) at the estimate; locations in "
+            + ("rad" if model.kind != "position" else "length units"))
+    emit(args, payload, "\n".join([head, *blocks]))
+    return 0
