@@ -30,6 +30,7 @@ from scipy.special import gammaln
 
 from .._validation import as_rng, finite_array, integer, positive_float
 from ..errors import InputError
+from ..geometry import wrap_angle
 from .univariate import CircularUniform, LogUniform, Prior, SinLatitude, Uniform
 
 __all__ = ["ScenePrior", "default_priors", "data_intensity_bound"]
@@ -180,13 +181,43 @@ class ScenePrior:
 
     # -- densities and transforms -------------------------------------------------
     def log_prob(self, x: np.ndarray) -> np.ndarray:
-        """Joint log density of labelled parameters, shape (...,) for x (..., P)."""
+        """Joint log density of labelled parameters, shape (...,) for x (..., P).
+
+        One pass over the flat array: a support test against ``lower``/``upper``
+        (periodic coordinates wrap, so they are always inside) plus the density
+        of each coordinate role; constant densities cost nothing per call.
+        """
         x = self._check("x", x)
-        out = np.zeros(x.shape[:-1])
-        for prior, idx in self._groups():
-            if idx.size:
-                out = out + np.sum(np.atleast_1d(prior.log_prob(x[..., idx])), axis=-1)
+        fast = self._fast
+        total = np.full(x.shape[:-1], fast["const"])
+        cols = x[..., fast["bounded"]]
+        inside = np.all((cols >= fast["lo"]) & (cols <= fast["hi"]), axis=-1)
+        for prior, idx in fast["curved"]:
+            xi = x[..., idx]
+            if prior.periodic:
+                xi = wrap_angle(xi)
+            xi = np.clip(xi, prior.lower, prior.upper)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                total = total + np.sum(prior._log_pdf(xi), axis=-1)
+        out = np.where(inside & ~np.isnan(total), total, -np.inf)
         return out if out.ndim else float(out)
+
+    @property
+    def _fast(self) -> dict:
+        if not hasattr(self, "_fast_cache"):
+            margs = self.marginals
+            bounded = np.array([not p.periodic for p in margs], dtype=bool)
+            const = 0.0
+            curved = []
+            for prior, idx in self._groups():
+                if idx.size and prior.flat:
+                    const += idx.size * float(prior._log_pdf(np.zeros(1))[0])
+                elif idx.size:
+                    curved.append((prior, idx))
+            self._fast_cache = dict(
+                bounded=bounded, lo=self.lower[bounded], hi=self.upper[bounded],
+                const=const, curved=curved)
+        return self._fast_cache
 
     def log_prob_ordered(self, x: np.ndarray) -> np.ndarray:
         """Normalised density on the canonical wedge: ``log_prob(x) + log K!``."""

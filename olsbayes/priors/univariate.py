@@ -51,6 +51,8 @@ class Prior:
     """
 
     periodic: bool = False
+    #: True when the density is constant on the support (Uniform, CircularUniform).
+    flat: bool = False
 
     @property
     def lower(self) -> float:  # pragma: no cover - overridden
@@ -125,6 +127,7 @@ class Uniform(Prior):
 
     lo: float
     hi: float
+    flat = True
 
     def __post_init__(self) -> None:
         lo, hi = _finite_bound("lo", self.lo), _finite_bound("hi", self.hi)
@@ -257,6 +260,7 @@ class CircularUniform(Prior):
     """
 
     periodic = True
+    flat = True
 
     lower = property(lambda self: -np.pi)
     upper = property(lambda self: np.pi)

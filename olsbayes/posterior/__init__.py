@@ -1,0 +1,13 @@
+"""Bayesian posteriors of OLS scenes: emcee ensembles, ArviZ output, CRLB audit.
+
+>>> from olsbayes.posterior import sample                          # doctest: +SKIP
+>>> res = sample(model, data, n_sources=2, rng=1)                  # doctest: +SKIP
+>>> res.summary(); res.crlb_check()                                # doctest: +SKIP
+
+ArviZ is used only through :mod:`olsbayes.posterior._arviz` (imported lazily).
+"""
+
+from .result import PosteriorResult
+from .sampler import sample
+
+__all__ = ["sample", "PosteriorResult"]

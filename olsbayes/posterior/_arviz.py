@@ -1,0 +1,188 @@
+"""Every ArviZ call of the package lives here.
+
+Other modules (model selection, CLI, studies) call these helpers rather than
+ArviZ itself, so one module tracks the ArviZ API.  ArviZ is imported lazily.
+
+Variables of a posterior ``InferenceData``: one per coordinate role with a
+``source`` dimension -- ``theta`` (ring, rad), ``lon``/``lat`` (sphere, rad),
+``x``/``y``/``z`` (plate, length unit of the array), ``I`` (intensity, units
+of the readings) -- plus a scalar ``sigma`` when the noise is inferred.  ArviZ
+labels their entries ``theta[0]``, ``I[1]``, ... exactly as
+``Model.param_names`` does.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .._io import atomic_path
+from ..errors import InputError
+
+__all__ = [
+    "import_arviz",
+    "split_names",
+    "to_inference_data",
+    "posterior_array",
+    "summary_frame",
+    "ess_rhat",
+    "from_dict",
+    "to_netcdf",
+    "from_netcdf",
+    "loo",
+    "waic",
+]
+
+
+def import_arviz():
+    """Import arviz quietly (0.23 emits a FutureWarning about its 1.0 rewrite)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        import arviz as az
+    return az
+
+
+def split_names(names: list[str]) -> list[tuple[str, int | None]]:
+    """``"theta[1]"`` -> ``("theta", 1)``; ``"sigma"`` -> ``("sigma", None)``."""
+    out = []
+    for nm in names:
+        if nm.endswith("]") and "[" in nm:
+            base, idx = nm[:-1].split("[", 1)
+            out.append((base, int(idx)))
+        else:
+            out.append((nm, None))
+    return out
+
+
+def _by_variable(values: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
+    """(chain, draw, P) -> {base: (chain, draw[, source])} in layout order."""
+    groups: dict[str, list[int]] = {}
+    scalars: dict[str, int] = {}
+    for j, (base, idx) in enumerate(split_names(names)):
+        if idx is None:
+            scalars[base] = j
+        else:
+            groups.setdefault(base, []).append(j)
+    out = {b: values[..., idx] for b, idx in groups.items()}
+    out.update({b: values[..., j] for b, j in scalars.items()})
+    return out
+
+
+def to_inference_data(
+    draws: np.ndarray,
+    names: list[str],
+    *,
+    log_posterior: np.ndarray,
+    log_prior: np.ndarray,
+    accepted: np.ndarray,
+    pointwise: np.ndarray,
+    data: np.ndarray,
+    constants: dict[str, np.ndarray],
+    attrs: dict[str, object],
+):
+    """Assemble an ``arviz.InferenceData``.
+
+    Parameters
+    ----------
+    draws : ndarray (chain, draw, P)
+        Relabelled draws (walkers as chains), burn-in removed.
+    names : list of str
+        Flat parameter names, length P.
+    log_posterior, log_prior : ndarray (chain, draw)
+    accepted : ndarray of bool (chain, draw)
+        Whether the walker moved at that step.
+    pointwise : ndarray (chain, draw, N)
+        Per-sub-sensor log-likelihood.
+    data : ndarray (N,)
+    constants : dict
+        ``constant_data`` arrays; ``normals`` (N, D) gets dims (sensor, axis).
+    attrs : dict
+        Written into every group's attributes (strings and numbers only).
+    """
+    az = import_arviz()
+    post = _by_variable(draws, names)
+    k = max((i + 1 for _, i in split_names(names) if i is not None), default=0)
+    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
+    dims.update({"obs": ["sensor"], "normals": ["sensor", "axis"],
+                 "positions": ["sensor", "axis"]})
+    coords = {"source": np.arange(k), "sensor": np.arange(data.shape[-1])}
+    return az.from_dict(
+        posterior=post,
+        sample_stats={"lp": log_posterior, "log_prior": log_prior,
+                      "acceptance_rate": accepted.astype(float)},
+        log_likelihood={"obs": pointwise},
+        observed_data={"obs": data},
+        constant_data=constants,
+        coords=coords,
+        dims=dims,
+        attrs=attrs,
+    )
+
+
+def posterior_array(idata, names: list[str]) -> np.ndarray:
+    """The posterior as one (chain, draw, P) array in layout order."""
+    post = idata.posterior
+    cols = []
+    for base, idx in split_names(names):
+        var = post[base]
+        cols.append((var if idx is None else var.isel(source=idx)).values)
+    return np.stack(cols, axis=-1)
+
+
+def summary_frame(draws: np.ndarray, names: list[str], hdi_prob: float = 0.94):
+    """``arviz.summary`` (pandas DataFrame, rows in layout order) of (chain, draw, P) draws.
+
+    Columns: mean, sd, hdi_*, mcse_mean, mcse_sd, ess_bulk, ess_tail, r_hat.
+    """
+    az = import_arviz()
+    post = _by_variable(np.asarray(draws, dtype=float), names)
+    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
+    idata = az.from_dict(posterior=post, dims=dims)
+    frame = az.summary(idata, hdi_prob=hdi_prob, round_to="none")
+    return frame.loc[list(names)]
+
+
+def from_dict(**groups):
+    """``arviz.from_dict`` (for other modules building InferenceData)."""
+    az = import_arviz()
+    return az.from_dict(**groups)
+
+
+def ess_rhat(idata) -> dict[str, np.ndarray]:
+    """Bulk ESS, tail ESS and rank-normalised split R-hat per variable (xarray)."""
+    az = import_arviz()
+    return {
+        "ess_bulk": az.ess(idata, method="bulk"),
+        "ess_tail": az.ess(idata, method="tail"),
+        "r_hat": az.rhat(idata),
+    }
+
+
+def to_netcdf(idata, path: str | os.PathLike) -> Path:
+    """Write ``idata`` to NetCDF atomically (loadable with ``arviz.from_netcdf``)."""
+    with atomic_path(path) as tmp:
+        idata.to_netcdf(str(tmp))
+    return Path(path)
+
+
+def from_netcdf(path: str | os.PathLike):
+    """Read an InferenceData written by :func:`to_netcdf`."""
+    if not Path(path).is_file():
+        raise InputError(f"path {str(path)!r} is not a file")
+    az = import_arviz()
+    return az.from_netcdf(str(path))
+
+
+def loo(idata, pointwise: bool = False):
+    """PSIS-LOO over sub-sensors (``arviz.loo``); returns arviz's ELPDData."""
+    az = import_arviz()
+    return az.loo(idata, pointwise=pointwise)
+
+
+def waic(idata, pointwise: bool = False):
+    """WAIC over sub-sensors (``arviz.waic``)."""
+    az = import_arviz()
+    return az.waic(idata, pointwise=pointwise)

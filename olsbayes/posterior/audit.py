@@ -1,0 +1,161 @@
+"""Posterior summaries (circular for angles) and the audit against the CRLB."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..crlb import kink_sources
+from ..geometry import wrap_angle
+from .result import PosteriorResult
+
+__all__ = ["unwrap_around", "summary", "crlb_check", "CRLBCheck"]
+
+#: Below this ratio I / sd_CRLB(I) a source counts as low-SNR (nonlinear regime).
+LOW_SNR = 5.0
+#: CRLB correlation above which two parameters are near the resolution limit.
+HIGH_CORRELATION = 0.9
+
+
+def unwrap_around(values: np.ndarray, centre: np.ndarray, periodic: np.ndarray) -> np.ndarray:
+    """Angles as ``centre + wrap(value - centre)`` (continuous near +-pi); others unchanged."""
+    out = np.array(values, dtype=float)
+    c = np.asarray(centre, dtype=float)[periodic]
+    out[..., periodic] = c + wrap_angle(out[..., periodic] - c)
+    return out
+
+
+def summary(result: PosteriorResult, hdi_prob: float = 0.94):
+    """Posterior table, one row per parameter in layout order.
+
+    Angles are summarised circularly: draws are unwrapped around their circular
+    mean before ArviZ computes mean, sd, HDI, ESS and R-hat, and the mean and
+    HDI ends are wrapped back to (-pi, pi] (an HDI may then read hi < lo when it
+    straddles +-pi).  A source at +-pi thus gets its true sd, not ~pi.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns mean, sd, hdi_*, mcse_mean, mcse_sd, ess_bulk, ess_tail, r_hat,
+        tau (emcee integrated autocorrelation time of the sampler coordinate,
+        steps) and crlb (CRLB sd at the posterior mean).
+    """
+    from ._arviz import summary_frame
+
+    per = result.periodic
+    frame = summary_frame(result.unwrapped_samples(), list(result.names), hdi_prob=hdi_prob)
+    hdi_cols = [c for c in frame.columns if c.startswith("hdi_")]
+    for col in ["mean"] + hdi_cols:
+        vals = frame[col].to_numpy(dtype=float).copy()
+        vals[per] = wrap_angle(vals[per])
+        frame[col] = vals
+    frame["tau"] = result.tau
+    frame["crlb"] = result.crlb_std
+    frame.index.name = "parameter"
+    return frame
+
+
+@dataclass(frozen=True)
+class CRLBCheck:
+    """Posterior sd against the CRLB, per parameter (layout order).
+
+    Attributes
+    ----------
+    names : tuple of str
+    posterior_sd, crlb_sd, ratio, mc_error : ndarray (P,)
+        ``ratio = posterior_sd / crlb_sd``; ``mc_error`` its Monte Carlo standard
+        error (ArviZ's mcse of the sd over ``crlb_sd``).
+    flagged : ndarray of bool (P,)
+        ``|ratio - 1| > max(rtol, 3 mc_error)``.
+    reasons : tuple of str
+        Why a ratio may differ from 1 (empty when nothing explains it):
+        ``prior-dominated``, ``near a prior boundary``, ``near the resolution
+        limit``, ``unidentifiable``, ``low SNR``, ``on the kink``, ``poor mixing``.
+    """
+
+    names: tuple[str, ...]
+    posterior_sd: np.ndarray
+    crlb_sd: np.ndarray
+    ratio: np.ndarray
+    mc_error: np.ndarray
+    flagged: np.ndarray
+    reasons: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        """True when no parameter is flagged."""
+        return not bool(np.any(self.flagged))
+
+    def to_frame(self):
+        """A pandas DataFrame with one row per parameter."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            {"posterior_sd": self.posterior_sd, "crlb_sd": self.crlb_sd, "ratio": self.ratio,
+             "mc_error": self.mc_error, "flagged": self.flagged, "reason": list(self.reasons)},
+            index=pd.Index(list(self.names), name="parameter"),
+        )
+
+
+def _prior_sd(prior) -> float:
+    if prior.periodic:
+        return np.pi / np.sqrt(3.0)  # sd of a uniform angle on (-pi, pi]
+    u = np.linspace(0.0005, 0.9995, 2000)
+    q = prior.ppf(u)
+    return float(np.std(q))
+
+
+def _reasons(result: PosteriorResult, table, crlb_sd: np.ndarray) -> list[list[str]]:
+    p = result.n_params
+    w = result.prior.n_loc + 1
+    k = result.n_sources
+    est = result.estimate
+    out: list[list[str]] = [[] for _ in range(p)]
+    finite = np.isfinite(crlb_sd)
+    cov = np.where(np.isfinite(result.crlb_cov), result.crlb_cov, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = cov / np.outer(crlb_sd, crlb_sd)
+    np.fill_diagonal(corr, 0.0)
+    snr = np.full(k, np.inf)
+    for s in range(k):
+        snr[s] = est[s * w + w - 1] / crlb_sd[s * w + w - 1]
+    kink = kink_sources(result.model, est[: k * w]) if k else np.zeros(0, bool)
+    for j, prior in enumerate(result.prior.marginals):
+        src = j // w if j < k * w else None
+        if not finite[j]:
+            out[j].append("unidentifiable")
+        elif crlb_sd[j] > 0.3 * _prior_sd(prior):
+            out[j].append("prior-dominated")
+        if finite[j] and not prior.periodic and min(
+                est[j] - prior.lower, prior.upper - est[j]) < 3 * crlb_sd[j]:
+            out[j].append("near a prior boundary")
+        if finite[j] and np.nanmax(np.abs(corr[j])) > HIGH_CORRELATION:
+            out[j].append("near the resolution limit")
+        if src is not None and snr[src] < LOW_SNR:
+            out[j].append("low SNR")
+        if src is not None and kink[src]:
+            out[j].append("on the kink")
+        if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > 1.05:
+            out[j].append("poor mixing")
+    return out
+
+
+def crlb_check(result: PosteriorResult, rtol: float = 0.2) -> CRLBCheck:
+    """Compare every posterior sd with its CRLB at the posterior mean.
+
+    At high SNR the posterior is Gaussian with covariance ~ the inverse Fisher
+    matrix, so the ratio is 1 within Monte Carlo error.  A parameter is flagged
+    when ``|ratio - 1| > max(rtol, 3 mc_error)``; ``reasons`` gives the known
+    causes present (prior truncation, resolution limit, low SNR, kink, mixing).
+    """
+    table = summary(result)
+    crlb_sd = result.crlb_std
+    post_sd = table["sd"].to_numpy(dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = post_sd / crlb_sd
+        mc = table["mcse_sd"].to_numpy(dtype=float) / crlb_sd
+    flagged = ~(np.abs(ratio - 1.0) <= np.maximum(rtol, 3 * mc))
+    reasons = tuple("; ".join(r) for r in _reasons(result, table, crlb_sd))
+    return CRLBCheck(names=result.names, posterior_sd=post_sd, crlb_sd=crlb_sd, ratio=ratio,
+                     mc_error=mc, flagged=flagged, reasons=reasons)
