@@ -49,10 +49,25 @@ def _either(sec: Mapping[str, Any], inline: str, file: str, required: bool) -> n
     return None
 
 
+#: Largest number of sub-sensors a configuration may ask for.
+MAX_SENSORS = 1_000_000
+#: Largest number of simulated readings (repeats x sub-sensors).
+MAX_READINGS = 50_000_000
+
+
+def _check_size(cfg: Config, count: int, what: str, limit: int) -> None:
+    if count > limit:
+        raise ConfigError(f"{cfg.source}: {what} = {count}; at most {limit} accepted")
+
+
 def array_from_config(cfg: Config) -> SensorArray:
     """The :class:`SensorArray` of the ``[sensor]`` section."""
     sec = cfg.section("sensor")
     geo = sec["geometry"]
+    if geo == "sphere" and "n_lat" in sec and "n_lon" in sec:
+        _check_size(cfg, sec["n_lat"] * sec["n_lon"], "[sensor] n_lat * n_lon", MAX_SENSORS)
+    if geo == "plate" and "nx" in sec and "ny" in sec:
+        _check_size(cfg, sec["nx"] * sec["ny"], "[sensor] nx * ny", MAX_SENSORS)
     with _as_config_error(cfg, "sensor"):
         if geo == "ring":
             return Ring(_need(sec, "n", "a ring"), sec.get("offset", 0.0))
@@ -142,5 +157,6 @@ def data_from_config(
     if seed is None:
         raise ConfigError(f"{cfg.source}: [data] simulate = true needs a seed (or --seed)")
     reps = sec.get("repeats", 1)
+    _check_size(cfg, reps * model.n_sensors, "[data] repeats * sub-sensors", MAX_READINGS)
     with _as_config_error(cfg, "data"):
         return model.simulate(scene, seed, size=None if reps == 1 else reps)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..build import model_from_config, scene_from_config
+from ..build import MAX_READINGS, model_from_config, scene_from_config
 from ..errors import InputError
 from ._common import (
     add_command,
@@ -67,6 +67,10 @@ def run(args: argparse.Namespace) -> int:
     reps = args.repeats if args.repeats is not None else data_sec.get("repeats", 1)
     if not 1 <= reps <= 1_000_000:
         raise InputError(f"--repeats must be in [1, 1000000]; got {reps}")
+    if reps * model.n_sensors > MAX_READINGS:
+        raise InputError(
+            f"--repeats {reps} x {model.n_sensors} sub-sensors exceeds {MAX_READINGS} readings"
+        )
     readings = model.simulate(scene, seed, size=reps)
     header = (
         f"olsbayes simulate: {model!r}; {scene!r}; seed={seed}; "
