@@ -30,6 +30,7 @@ COMMANDS: tuple[str, ...] = (
     "simulate",
     "crlb",
     "fit",
+    "study",
 )
 
 

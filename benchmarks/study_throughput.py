@@ -1,0 +1,120 @@
+"""Throughput of ``run_study`` on one machine: serial vs a local pool vs Dask, in one run.
+
+The workload is ML trials (:func:`olsbayes.studies.estimators.ring_estimate`,
+method ``"fast"``: simulate a ring scene, fit it with ``fit_ml``, score it against
+the CRLB).  Measured side by side:
+
+* trials per second with ``executor="serial"``, a 2-worker local process pool
+  and a 2-worker Dask ``LocalCluster`` (processes), each warm (executor started
+  and workers imported before the clock starts) -- targets: pool / serial >= 1.6,
+  Dask / pool >= 0.8;
+* the same with the executor started inside ``run_study`` (cold);
+* the runner's own cost per trial (seeds, chunk bookkeeping, stacking, the
+  Dataset) next to a batched ML fit: ``run_study`` of ``fast_batched`` trials
+  vs calling the trial function on the same rngs directly, and a no-op trial.
+
+Usage::
+
+    python benchmarks/study_throughput.py            # quick (~1 min)
+    python benchmarks/study_throughput.py --full     # more trials, 3 repeats
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import multiprocessing
+import time
+from pathlib import Path
+
+import numpy as np
+
+from olsbayes.studies import run_study, vectorized
+from olsbayes.studies.estimators import ring_estimate
+from olsbayes.studies.seeds import trial_rngs
+
+SETTINGS = {"n_sensors": 16, "sigma": 0.01, "n_sources": 2}
+
+
+@vectorized
+def noop(settings, rngs):
+    """A trial that does nothing: the runner's own cost."""
+    return {"x": np.zeros(len(rngs))}
+
+
+def timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def study(executor, n, method="fast", trial=ring_estimate, chunk_size=None, **kw):
+    return run_study(trial, {"method": [method]}, n, fixed=SETTINGS, executor=executor,
+                     rng=1, chunk_size=chunk_size, progress=False, **kw)
+
+
+def throughput(n: int, repeats: int) -> dict:
+    from distributed import Client, LocalCluster
+
+    rates: dict[str, float] = {}
+    study("serial", 8)  # imports and caches outside the clock
+    rates["serial"] = n / min(timed(lambda: study("serial", n)) for _ in range(repeats))
+    ctx = multiprocessing.get_context("forkserver")
+    with cf.ProcessPoolExecutor(2, mp_context=ctx) as pool:
+        study(pool, 8, chunk_size=4)
+        rates["processes(2) warm"] = n / min(timed(lambda: study(pool, n))
+                                             for _ in range(repeats))
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        study(client, 8, chunk_size=4)
+        rates["dask(2) warm"] = n / min(timed(lambda: study(client, n))
+                                        for _ in range(repeats))
+    rates["processes(2) cold"] = n / timed(lambda: study("processes", n, workers=2))
+    rates["dask(2) cold"] = n / timed(lambda: study("dask", n, workers=2))
+    return rates
+
+
+def overhead(n: int, repeats: int) -> dict:
+    settings = {**SETTINGS, "method": "fast_batched"}
+    rngs = lambda: trial_rngs(1, 0, np.arange(n))  # noqa: E731
+    direct = min(timed(lambda: ring_estimate(settings, rngs())) for _ in range(repeats))
+    runner = min(timed(lambda: study("serial", n, "fast_batched", chunk_size=n))
+                 for _ in range(repeats))
+    rng_only = min(timed(rngs) for _ in range(repeats))
+    nothing = min(timed(lambda: study("serial", n, trial=noop, chunk_size=50))
+                  for _ in range(repeats))
+    return {"batched fit+score per trial (direct)": direct / n,
+            "same through run_study, per trial": runner / n,
+            "runner overhead per trial": (runner - direct) / n,
+            "  of which per-trial SeedSequence+Generator": rng_only / n,
+            "no-op trial through run_study (chunks of 50)": nothing / n}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--full", action="store_true", help="paper-size run")
+    ap.add_argument("--out", type=Path, default=Path("out/study_throughput"))
+    args = ap.parse_args()
+    n, reps = (480, 3) if args.full else (160, 1)
+    rates = throughput(n, reps)
+    ov = overhead(2000 if args.full else 500, 3)
+    lines = [f"ML trials ({SETTINGS}, method fast), {n} trials, best of {reps}:"]
+    lines += [f"  {k:<22s} {v:8.1f} trials/s" for k, v in rates.items()]
+    lines += [
+        f"  ratio processes(2)/serial (warm) = "
+        f"{rates['processes(2) warm'] / rates['serial']:.2f}   (target >= 1.6)",
+        f"  ratio dask(2)/processes(2) (warm) = "
+        f"{rates['dask(2) warm'] / rates['processes(2) warm']:.2f}   (target >= 0.8)",
+        f"  ratio dask(2)/processes(2) (cold) = "
+        f"{rates['dask(2) cold'] / rates['processes(2) cold']:.2f}",
+        "Runner overhead (serial, seconds per trial):",
+    ]
+    lines += [f"  {k:<46s} {v * 1e6:9.1f} us" for k, v in ov.items()]
+    text = "\n".join(lines)
+    print(text)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "study_throughput.txt").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()

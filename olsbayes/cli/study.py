@@ -1,0 +1,178 @@
+"""Run a Monte Carlo study described by a TOML file, locally or on a Dask cluster.
+
+The file holds a [study] table (what to run and where), a [grid] table (setting
+axes: lists of numbers, strings or bools) and an optional [fixed] table
+(settings shared by every cell).  The default trial, ring_estimate, simulates a
+ring scene, estimates it with the grid's `method` and scores it against the CRLB.
+
+  [study]
+  trial = "ring_estimate"        # or noise_check, or "package.module:function"
+  n_trials = 200
+  seed = 1
+  out = "study.nc"               # NetCDF result (relative to this file)
+  checkpoint = "study.ckpt"      # optional; resume with --resume after a crash
+  executor = "processes"         # serial | threads | processes | dask
+  workers = 2
+
+  [grid]
+  method = ["fast", "multistart_5"]
+  sigma = [0.001, 0.01, 0.1]
+  n_sources = [1, 2]
+
+  [fixed]
+  n_sensors = 16
+
+Examples:
+  olsbayes study sweep.toml
+  olsbayes study sweep.toml --resume
+  olsbayes study sweep.toml --executor dask --scheduler tcp://10.0.0.5:8786
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from ..config import Field, Section, parse_config, register_section
+from ..errors import ConfigError, InputError
+from ..studies import EXECUTORS, run_study
+from ._common import _parse_override, add_command, add_json_arg, emit, format_table
+
+__all__ = ["register", "run", "load_study_config", "BUILTIN_TRIALS"]
+
+#: Trial functions accepted by name in [study] trial.
+BUILTIN_TRIALS = {
+    "ring_estimate": "olsbayes.studies.estimators:ring_estimate",
+    "noise_check": "olsbayes.studies.trials:noise_check",
+    "noise_check_batch": "olsbayes.studies.trials:noise_check_batch",
+}
+
+STUDY_SECTION = register_section(Section(
+    name="study",
+    doc="a Monte Carlo study: trial function, trials per cell, seed, executor, files",
+    fields={
+        "trial": Field("str", default="ring_estimate",
+                       doc="built-in trial name or 'package.module:function'"),
+        "n_trials": Field("int", required=True, low=1, high=10**9, doc="trials per grid cell"),
+        "seed": Field("int", low=0, high=2**63 - 1, doc="root seed (default: fresh)"),
+        "out": Field("path", doc="NetCDF file of the result"),
+        "checkpoint": Field("path", doc="append-only checkpoint file (enables --resume)"),
+        "executor": Field("str", default="processes", choices=EXECUTORS,
+                          doc="serial, threads, processes or dask"),
+        "workers": Field("int", low=1, high=100_000, doc="local workers (default: cores)"),
+        "scheduler": Field("str", doc="Dask scheduler address, e.g. tcp://host:8786"),
+        "chunk_size": Field("int", low=1, high=10**6, doc="trials per task"),
+    },
+))
+_TABLES = ("study", "grid", "fixed")
+
+
+def register(subparsers: Any) -> None:
+    p = add_command(subparsers, "study", help="run a Monte Carlo study (local pool or Dask)",
+                    description=__doc__)
+    p.add_argument("config", metavar="CONFIG", help="TOML file with [study], [grid], [fixed]")
+    p.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="SECTION.KEY=VALUE", help="override one value (TOML syntax)")
+    p.add_argument("--executor", choices=EXECUTORS, default=None, help="override [study]")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler address (implies --executor dask)")
+    p.add_argument("--workers", type=int, default=None, help="local workers")
+    p.add_argument("--out", type=Path, default=None, help="NetCDF result file")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the study in the [study] checkpoint file")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_json_arg(p)
+    p.set_defaults(run=run)
+
+
+def _load_trial(spec: str, source: str):
+    target = BUILTIN_TRIALS.get(spec, spec)
+    module, sep, name = target.partition(":")
+    if not sep or not module or not name:
+        raise ConfigError(f"{source}: [study] trial must be one of {sorted(BUILTIN_TRIALS)} or "
+                          f"'package.module:function'; got {spec!r}")
+    try:
+        fn = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"{source}: [study] trial {spec!r} cannot be imported: {exc}") from None
+    if not callable(fn):
+        raise ConfigError(f"{source}: [study] trial {spec!r} is not a function")
+    return fn
+
+
+def load_study_config(path: str | Path, overrides: dict | None = None) -> dict[str, Any]:
+    """Validated study settings: ``{"study": {...}, "grid": {...}, "fixed": {...}, "trial": fn}``.
+
+    [study] is validated by :mod:`olsbayes.config`; [grid] and [fixed] are free
+    tables checked by :func:`olsbayes.studies.run_study`'s own rules.
+    """
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"config {str(p)!r} cannot be read: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: malformed TOML: {exc}") from None
+    for key, value in (overrides or {}).items():
+        sec, _, name = key.partition(".")
+        doc.setdefault(sec, {})[name] = value
+    for name, table in doc.items():
+        if name not in _TABLES or not isinstance(table, dict):
+            raise ConfigError(f"{p}: unknown section or key {name!r}; accepted sections: "
+                              f"{', '.join(f'[{t}]' for t in _TABLES)}")
+    study = parse_config("", ("study",), required=("study",), source=str(p),
+                         base_dir=p.resolve().parent,
+                         overrides={f"study.{k}": v for k, v in doc.get("study", {}).items()})
+    return {"study": dict(study.section("study")), "grid": doc.get("grid", {}),
+            "fixed": doc.get("fixed", {}),
+            "trial": _load_trial(study.section("study")["trial"], str(p))}
+
+
+def _summary(ds) -> tuple[list[str], list[list[Any]]]:
+    dims = [d for d in ds.dims if d in ds.coords and d != "trial"]
+    scalars = [v for v in ds.data_vars if set(ds[v].dims) <= set(dims) | {"trial"}]
+    mean = ds[scalars].astype(float).mean("trial")
+    flat = mean.to_dataframe().reset_index() if dims else None
+    header = dims + [f"mean {v}" for v in scalars]
+    if flat is None:
+        return header, [[float(mean[v]) for v in scalars]]
+    return header, [list(r) for r in flat[dims + scalars].itertuples(index=False)][:200]
+
+
+def run(args: argparse.Namespace) -> int:
+    overrides = dict(_parse_override(s) for s in args.overrides)
+    cfg = load_study_config(args.config, overrides)
+    s = cfg["study"]
+    executor = "dask" if args.scheduler else (args.executor or s["executor"])
+    scheduler = args.scheduler or s.get("scheduler")
+    if executor != "dask":
+        scheduler = None
+    out = args.out if args.out is not None else s.get("out")
+    if out is None:
+        raise InputError("study needs an output file: [study] out = \"...\" or --out FILE")
+    ckpt = s.get("checkpoint")
+    if args.resume and ckpt is None:
+        raise InputError("--resume needs [study] checkpoint = \"...\" in the config")
+    if ckpt is not None and Path(ckpt).exists() and not args.resume:
+        raise InputError(f"checkpoint {str(ckpt)!r} exists: pass --resume to continue that "
+                         "study, or delete the file to start afresh")
+    try:
+        ds = run_study(cfg["trial"], cfg["grid"], s["n_trials"], fixed=cfg["fixed"],
+                       executor=executor, workers=args.workers or s.get("workers"),
+                       scheduler=scheduler, checkpoint=ckpt, out=out, rng=s.get("seed"),
+                       chunk_size=s.get("chunk_size"), progress=not args.no_progress)
+    except InputError as exc:
+        raise ConfigError(f"{args.config}: {exc}") from None
+    header, rows = _summary(ds)
+    payload = {"out": str(out), "seed": ds.attrs["seed"], "n_trials": int(ds.attrs["n_trials"]),
+               "dims": {k: int(v) for k, v in ds.sizes.items()}, "header": header,
+               "rows": rows}
+    text = (f"study {ds.attrs['trial_function']}: {dict(ds.sizes)}, seed {ds.attrs['seed']}\n"
+            f"{format_table(header, rows)}\nwritten: {out}")
+    emit(args, payload, text)
+    return 0
+
+
