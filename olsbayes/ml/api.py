@@ -57,7 +57,8 @@ def fit_ml(
     grid: np.ndarray | None = None,
     n_starts: int = 20,
     n_restarts: int = 4,
-    restart_scale: float = 3.0,
+    restart_scale: float = 6.0,
+    n_coarse: int = 3,
     max_iter: int | None = None,
     warn: bool = True,
 ) -> MLResult:
@@ -87,6 +88,9 @@ def fit_ml(
         Multistart: number of random starts (the paper's method; 20 by default).
     n_restarts, restart_scale : int, float
         Fast: number of perturbed restarts and their size in grid steps.
+    n_coarse : int
+        Fast, K >= 2: number of interleaved coarse atom subsets searched
+        exhaustively over K-tuples (each adds one candidate start; 0 = pursuit only).
     max_iter : int, optional
         Iteration cap of each local optimisation (default 100 for LM, 500 for L-BFGS-B).
     warn : bool
@@ -113,8 +117,9 @@ def fit_ml(
         n_restarts = integer("n_restarts", n_restarts, low=0, high=64)
         restart_scale = positive_float("restart_scale", restart_scale)
         it = 100 if max_iter is None else integer("max_iter", max_iter, low=1)
-        out = fit_fast(model, s, k, g, n_restarts=n_restarts,
-                       restart_scale=restart_scale, max_iter=it)
+        n_coarse = integer("n_coarse", n_coarse, low=0, high=64)
+        out = fit_fast(model, s, k, g, n_restarts=n_restarts, restart_scale=restart_scale,
+                       n_coarse=n_coarse, max_iter=it)
     else:
         n_starts = integer("n_starts", n_starts, low=1)
         it = 500 if max_iter is None else integer("max_iter", max_iter, low=1)

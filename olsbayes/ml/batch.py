@@ -89,7 +89,7 @@ def refine_batch(
     x0: np.ndarray,
     *,
     max_iter: int = 100,
-    ftol: float = 1e-12,
+    ftol: float = 1e-10,
 ) -> LMOutcome:
     """Bounded Levenberg–Marquardt from ``x0`` for every trial at once.
 

@@ -60,16 +60,24 @@ def fit_fast(
     grid: np.ndarray,
     *,
     n_restarts: int = 4,
-    restart_scale: float = 3.0,
+    restart_scale: float = 6.0,
+    n_coarse: int = 3,
     max_iter: int = 100,
 ) -> LMOutcome:
     """Fast ML fits of a batch ``data`` (T, N); returns the raw (T, P) outcome."""
     k, d = n_sources, model.n_loc
     t = data.shape[0]
     g = atoms(model, grid)
-    idx, inten, _ = grid_search(g, data, k)
-    x0 = np.concatenate([grid[idx], inten[..., None]], axis=-1).reshape(t, -1)
-    out = refine_batch(model, data, x0, max_iter=max_iter)
+    idx, inten = grid_search(g, data, k, n_coarse=n_coarse)  # (T, C, K)
+    c = idx.shape[1]
+    x0 = np.concatenate([grid[idx], inten[..., None]], axis=-1).reshape(t * c, -1)
+    cand = refine_batch(model, np.repeat(data, c, axis=0), x0, max_iter=max_iter)
+    chi2 = cand.chi2.reshape(t, c)
+    pick = np.arange(t) * c + np.argmin(chi2, axis=1)
+    out = LMOutcome(
+        x=cand.x[pick], chi2=cand.chi2[pick], converged=cand.converged[pick],
+        n_evaluations=cand.n_evaluations.reshape(t, c).sum(axis=1),
+    )
     if n_restarts:
         delta = restart_scale * grid_step(model, grid)
         for pat in restart_patterns(k, d, n_restarts):

@@ -19,7 +19,7 @@ __all__ = ["default_grid", "atoms", "grid_step"]
 
 
 def _ring_grid(model: Model, density: float) -> np.ndarray:
-    m = int(max(256, np.ceil(density * model.n_sensors)))
+    m = int(max(128, np.ceil(density * model.n_sensors)))
     return (wrap_angle(2 * np.pi * (np.arange(m) + 0.5) / m))[:, None]
 
 
@@ -46,7 +46,7 @@ def _plate_grid(model: Model, density: float) -> np.ndarray:
     return np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
 
 
-def default_grid(model: Model, density: float = 12.0) -> np.ndarray:
+def default_grid(model: Model, density: float = 4.0) -> np.ndarray:
     """Default candidate locations, shape (M, d).
 
     Ring: ``max(256, density * N)`` equally spaced angles.  Sphere: a Fibonacci

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .tuples import TUPLE_BUDGET, TuplePlan, tuple_plans, tuple_search
+
 __all__ = ["grid_search"]
 
 _CHUNK = 512
@@ -33,10 +35,10 @@ def _scores(g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, q: np.ndarray) -> 
     num = s @ g.T  # (T, M)
     den = np.broadcast_to(gnorm2, num.shape).copy()
     if q.shape[2]:
-        cg = np.einsum("mn,tnk->tmk", g, q)  # (T, M, k)
-        cs = np.einsum("tn,tnk->tk", s, q)
-        num = num - np.einsum("tmk,tk->tm", cg, cs)
-        den = den - np.einsum("tmk,tmk->tm", cg, cg)
+        cg = g @ q  # (T, M, k), batched BLAS
+        cs = (s[:, None, :] @ q)[:, 0, :]  # (T, k)
+        num = num - (cg @ cs[:, :, None])[..., 0]
+        den = den - np.square(cg).sum(axis=-1)
     ok = (num > 0) & (den > 1e-8 * gnorm2)
     return np.where(ok, num**2 / np.where(ok, den, 1.0), -np.inf)
 
@@ -50,17 +52,23 @@ def _basis(g: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return q
 
 
-def _search_chunk(
-    g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int, max_sweeps: int
-) -> tuple[np.ndarray, int]:
-    t = s.shape[0]
-    idx = np.zeros((t, 0), dtype=np.int64)
-    rows = np.arange(t)
-    for _ in range(k):  # matching pursuit
+def _pursuit(g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int) -> np.ndarray:
+    """Orthogonal matching pursuit: K atoms chosen one at a time, shape (T, K)."""
+    idx = np.zeros((s.shape[0], 0), dtype=np.int64)
+    for _ in range(k):
         sc = _scores(g, gnorm2, s, _basis(g, idx))
         idx = np.column_stack([idx, np.argmax(sc, axis=1)])
-    sweeps = 0
-    for sweeps in range(1, max_sweeps + 1 if k > 1 else 1):  # alternating projection
+    return idx
+
+
+def _alternate(
+    g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, idx: np.ndarray, max_sweeps: int
+) -> np.ndarray:
+    """Alternating projection from ``idx`` (T, K): re-choose each atom given the rest."""
+    idx = idx.copy()
+    t, k = idx.shape
+    rows = np.arange(t)
+    for _ in range(max_sweeps if k > 1 else 0):
         changed = np.zeros(t, bool)
         for j in range(k):
             others = np.delete(idx, j, axis=1)
@@ -71,22 +79,42 @@ def _search_chunk(
             idx[:, j] = np.where(better, best, idx[:, j])
         if not changed.any():
             break
-    return idx, sweeps
+    return idx
+
+
+def _rss(g: np.ndarray, s: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Least-squares residual sum of squares of the atoms idx (T, K), shape (T,)."""
+    q = _basis(g, idx)
+    c = np.einsum("tn,tnk->tk", s, q)
+    return np.einsum("tn,tn->t", s, s) - np.einsum("tk,tk->t", c, c)
+
+
+def _search_chunk(
+    g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int, max_sweeps: int,
+    plans: list[TuplePlan],
+) -> np.ndarray:
+    """Candidate K-atom sets (T, C, K): pursuit start, then one per coarse subset."""
+    cands = [_alternate(g, gnorm2, s, _pursuit(g, gnorm2, s, k), max_sweeps)]
+    for plan in plans:
+        cands.append(_alternate(g, gnorm2, s, tuple_search(plan, s), max_sweeps))
+    return np.stack(cands, axis=1)
 
 
 def _intensities(g: np.ndarray, s: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Least-squares intensities of the chosen atoms, clipped at 0, shape (T, K)."""
-    a = g[idx]  # (T, K, N)
-    ata = a @ np.swapaxes(a, 1, 2)
-    ridge = 1e-10 * np.trace(ata, axis1=1, axis2=2)[:, None, None] * np.eye(idx.shape[1])
-    rhs = np.einsum("tkn,tn->tk", a, s)
+    """Least-squares intensities of the chosen atoms (T, C, K), clipped at 0."""
+    a = g[idx]  # (T, C, K, N)
+    ata = a @ np.swapaxes(a, -1, -2)
+    tr = np.trace(ata, axis1=-2, axis2=-1)[..., None, None]
+    ridge = 1e-10 * tr * np.eye(idx.shape[-1]) + 1e-300
+    rhs = np.einsum("tckn,tn->tck", a, s)
     return np.maximum(np.linalg.solve(ata + ridge, rhs[..., None])[..., 0], 0.0)
 
 
 def grid_search(
-    g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Best K-atom explanation of every data vector.
+    g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
+    budget: int = TUPLE_BUDGET,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate K-atom explanations of every data vector.
 
     Parameters
     ----------
@@ -97,21 +125,24 @@ def grid_search(
         Number of sources.
     max_sweeps : int
         Maximum alternating-projection sweeps.
+    n_coarse : int
+        For K >= 2, number of differently placed coarse atom subsets whose best
+        K-tuple (:mod:`olsbayes.ml.tuples`) also starts an alternating projection.
+    budget : int
+        Cap on the number of K-tuples per coarse subset (sets its size).
 
     Returns
     -------
-    idx : ndarray of int, shape (T, K)
-        Chosen atoms.
-    intensity : ndarray, shape (T, K)
-        Their non-negative least-squares intensities (clipped).
-    sweeps : int
-        Largest number of sweeps used in a chunk.
+    idx : ndarray of int, shape (T, C, K)
+        C = 1 + (n_coarse if K >= 2 else 0) candidate atom sets per trial.
+    intensity : ndarray, shape (T, C, K)
+        Their least-squares intensities, clipped at 0.
     """
     gnorm2 = np.einsum("mn,mn->m", g, g)
-    idx_all, used = [], 0
-    for start in range(0, data.shape[0], _CHUNK):
-        idx, sw = _search_chunk(g, gnorm2, data[start : start + _CHUNK], k, max_sweeps)
-        idx_all.append(idx)
-        used = max(used, sw)
-    idx = np.concatenate(idx_all, axis=0)
-    return idx, _intensities(g, data, idx), used
+    plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
+    parts = [
+        _search_chunk(g, gnorm2, data[i : i + _CHUNK], k, max_sweeps, plans)
+        for i in range(0, data.shape[0], _CHUNK)
+    ]
+    idx = np.concatenate(parts, axis=0)
+    return idx, _intensities(g, data, idx)
