@@ -29,14 +29,14 @@ def test_prior_recovered_without_likelihood():
     model = Model(Sphere.fibonacci(20), sigma=0.1)
     prior = default_priors(model, 2, i_max=2.0)
     res = sample(model, np.zeros(20), 2, priors=prior, start="prior", rng=3, progress=False,
-                 use_likelihood=False, relabel_sources=False, max_steps=2000)
+                 use_likelihood=False, relabel_sources=False, n_steps=1500)
     draws = res.samples  # (W, D, P)
     tau = max(float(np.max(res.tau)), 1.0)
     step = int(np.ceil(2 * tau))
     pvals = []
     for j, marg in enumerate(prior.marginals):
         # nearly independent draws: every 2 tau-th step of a few walkers far apart
-        x = draws[::8, ::step, j].ravel()
+        x = draws[::4, ::step, j].ravel()
         pvals.append(stats.kstest(x, marg.cdf).pvalue)
     assert min(pvals) > 1e-3 / len(pvals)
     assert stats.kstest(pvals, "uniform").pvalue > 1e-3

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import importlib
 
-__all__ = ["plot_response"]
+__all__ = ["plot_response", "plot_corner", "plot_trace"]
 
-_LAZY = {"plot_response": "response"}
+_LAZY = {"plot_response": "response", "plot_corner": "corner", "plot_trace": "corner"}
 
 
 def __getattr__(name: str):

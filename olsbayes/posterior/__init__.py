@@ -7,7 +7,17 @@
 ArviZ is used only through :mod:`olsbayes.posterior._arviz` (imported lazily).
 """
 
+from .audit import CRLBCheck, crlb_check, summary
+from .report import ReportFiles, write_report
 from .result import PosteriorResult
 from .sampler import sample
 
-__all__ = ["sample", "PosteriorResult"]
+__all__ = [
+    "sample",
+    "PosteriorResult",
+    "summary",
+    "crlb_check",
+    "CRLBCheck",
+    "write_report",
+    "ReportFiles",
+]

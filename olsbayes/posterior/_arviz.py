@@ -29,6 +29,7 @@ __all__ = [
     "posterior_array",
     "summary_frame",
     "ess_rhat",
+    "rhat_array",
     "from_dict",
     "to_netcdf",
     "from_netcdf",
@@ -159,6 +160,13 @@ def ess_rhat(idata) -> dict[str, np.ndarray]:
         "ess_tail": az.ess(idata, method="tail"),
         "r_hat": az.rhat(idata),
     }
+
+
+def rhat_array(draws: np.ndarray) -> np.ndarray:
+    """Rank-normalised split R-hat of (chain, draw, P) draws, shape (P,)."""
+    az = import_arviz()
+    ds = az.convert_to_dataset(np.asarray(draws, dtype=float))
+    return np.asarray(az.rhat(ds)["x"].values, dtype=float)
 
 
 def to_netcdf(idata, path: str | os.PathLike) -> Path:

@@ -10,6 +10,7 @@ import numpy as np
 from .._validation import as_rng, finite_array, integer, positive_float
 from ..crlb import bound_covariance
 from ..errors import ConvergenceWarning, InputError
+from ..geometry import wrap_angle
 from ..model import Model
 from ..priors import ScenePrior, default_priors
 from ._labels import relabel
@@ -108,25 +109,48 @@ def _seed_emcee(sampler, gen: np.random.Generator) -> None:
     sampler.random_state = np.random.RandomState(seed).get_state()
 
 
-def _run(sampler, z0, max_steps, check_every, tau_multiple, progress):
-    """Run until n >= tau_multiple * tau (tau stable to 10%) or max_steps."""
+def _run(sampler, z0, max_steps, check_every, tau_multiple, progress, rhat_check):
+    """Run until n >= tau_multiple * tau (tau stable to 10%) and R-hat holds, or max_steps."""
     import emcee
 
     old = np.inf
     converged = False
     for _ in sampler.sample(emcee.State(z0), iterations=max_steps, progress=progress):
         it = sampler.iteration
-        if check_every is None:
-            continue
-        if it % check_every:
+        if check_every is None or it % check_every:
             continue
         tau = sampler.get_autocorr_time(tol=0)
         tmax = float(np.max(tau))
-        if np.isfinite(tmax) and it >= tau_multiple * tmax and abs(old - tmax) < 0.1 * tmax:
+        stable = abs(old - tmax) < 0.1 * tmax
+        old = tmax
+        if np.isfinite(tmax) and it >= tau_multiple * tmax and stable and rhat_check(tmax):
             converged = True
             break
-        old = tmax
     return converged
+
+
+def _rhat_checker(sampler, logpost, prior, rhat_max):
+    """Closure: True when the relabelled post-burn-in draws have max R-hat < rhat_max."""
+    from ._arviz import rhat_array
+
+    def check(tmax: float) -> bool:
+        if rhat_max is None:
+            return True
+        chain = sampler.get_chain()
+        burn = min(int(np.ceil(5 * tmax)), chain.shape[0] // 2)
+        step = max(1, int(tmax // 4))  # thinned by tau / 4: near the same R-hat, cheaper
+        x = logpost.to_params(chain[burn::step].swapaxes(0, 1))
+        if prior.n_sources > 1:
+            w = prior.n_loc + 1
+            lpost = sampler.get_log_prob()[burn::step].T
+            x, _ = relabel(x, prior.n_sources, prior.periodic[:w], lpost)
+        if prior.periodic.any():
+            centre = circular_mean(x[..., prior.periodic].reshape(-1, int(prior.periodic.sum())),
+                                   axis=0)
+            x[..., prior.periodic] = centre + wrap_angle(x[..., prior.periodic] - centre)
+        return bool(np.max(rhat_array(x)) < rhat_max)
+
+    return check
 
 
 def sample(
@@ -143,6 +167,7 @@ def sample(
     max_steps: int = 20000,
     n_steps: int | None = None,
     tau_multiple: float = 50.0,
+    rhat_max: float | None = 1.01,
     check_every: int = 100,
     burn: int | None = None,
     thin: int = 1,
@@ -184,6 +209,9 @@ def sample(
     tau_multiple : float
         Run until ``steps >= tau_multiple * max(tau)`` with tau the integrated
         autocorrelation time, checked every ``check_every`` steps.
+    rhat_max : float or None
+        Also require the rank-normalised split R-hat of the relabelled draws
+        (walkers as chains) below this; None drops the requirement.
     burn : int, optional
         Steps discarded; default ``ceil(5 max(tau))`` (at most half the chain).
     thin : int
@@ -234,8 +262,11 @@ def sample(
                                     moves=_moves(moves))
     _seed_emcee(sampler, gen_mc)
     t0 = time.perf_counter()
+    if rhat_max is not None:
+        rhat_max = positive_float("rhat_max", rhat_max)
+    rhat_check = _rhat_checker(sampler, logpost, prior, rhat_max)
     converged = _run(sampler, z0, max_steps, None if fixed else check_every, tau_multiple,
-                     progress)
+                     progress, rhat_check)
     elapsed = time.perf_counter() - t0
     result = _assemble(model, data, prior, logpost, sampler, centre, burn, thin,
                        relabel_sources)
@@ -244,7 +275,8 @@ def sample(
     elif not converged:
         warnings.warn(
             f"emcee stopped at max_steps={max_steps} before {tau_multiple:g} autocorrelation "
-            f"times (max tau = {np.max(result['tau']):.1f} steps): run longer or check the start",
+            f"times (max tau = {np.max(result['tau']):.1f} steps) with R-hat < {rhat_max}: "
+            "run longer or check the start (a multimodal posterior?)",
             ConvergenceWarning,
             stacklevel=2,
         )
