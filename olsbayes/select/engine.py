@@ -67,17 +67,43 @@ def laplace_work(model: Model, k: int, fitted: tuple, prior,
                  stats=stats)
 
 
-def nested_work(model: Model, data: np.ndarray, work: KWork, prior,
-                rng: np.random.Generator, *, maxcall: int, nlive: int | None) -> KWork:
-    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
-    data = np.asarray(data, float)
+def scalar_log_likelihood(model: Model, data: np.ndarray):
+    """A lean one-point log-likelihood for dynesty, equal to ``model.log_likelihood``.
+
+    dynesty's slice samplers call the likelihood one point at a time, where the
+    batched model's per-call overhead dominates (~10x a direct kernel).  Distant
+    sources (ring, sphere) get a direct kernel; near sources use the model.
+    """
+    data = np.array(data, dtype=float)
+    if model.kind == "position":
+        return lambda x: float(model.log_likelihood(x, data))
+    nt = np.ascontiguousarray(model.array.normals.T)
+    law = model.sensitivity.value
+    inv2s2 = 0.5 / model.sigma**2
+    const = -model.n_sensors * (math.log(model.sigma) + 0.5 * math.log(2.0 * math.pi))
+    w = model.n_loc + 1
+    ring = model.kind == "angle"
 
     def log_like(x: np.ndarray) -> float:
-        return float(model.log_likelihood(x, data))
+        b = x.reshape(-1, w)
+        if ring:
+            u = np.column_stack([np.cos(b[:, 0]), np.sin(b[:, 0])])
+        else:
+            cl = np.cos(b[:, 1])
+            u = np.column_stack([cl * np.cos(b[:, 0]), cl * np.sin(b[:, 0]), np.sin(b[:, 1])])
+        r = data - b[:, -1] @ law(u @ nt)
+        return float(const - inv2s2 * (r @ r))
 
-    out = nested_log_evidence(log_like, prior.ppf, prior.n_params,
+    return log_like
+
+
+def nested_work(model: Model, data: np.ndarray, work: KWork, prior,
+                rng: np.random.Generator, *, maxcall: int, nlive: int | None,
+                dlogz: float = 0.5) -> KWork:
+    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
+    out = nested_log_evidence(scalar_log_likelihood(model, data), prior.ppf, prior.n_params,
                               periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
-                              nlive=nlive)
+                              nlive=nlive, dlogz=dlogz)
     lap = work.laplace
     if not work.reasons and np.isfinite(lap):
         gap = abs(out.log_evidence - lap)

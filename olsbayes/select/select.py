@@ -32,6 +32,8 @@ __all__ = ["select_k", "METHODS", "K_MAX_LIMIT"]
 METHODS = ("auto", "laplace", "nested", "bic", "aic")
 #: Hard upper limit of k_max (the evidence of more sources is beyond any sampler budget).
 K_MAX_LIMIT = 8
+#: Nats within which a trusted Laplace comparison counts as at the decision boundary.
+TRUSTED_MARGIN = 1.0
 
 
 def _prior_factory(model: Model, data: np.ndarray, priors: object, i_max: float | None
@@ -79,33 +81,49 @@ def _count_prior(k_prior: object, k_max: int) -> np.ndarray:
     return np.asarray(prior.log_prob(np.arange(k_max + 1)), float)
 
 
-def _next_escalation(works: list[KWork], log_pk: np.ndarray, decisive: float,
-                     done: set[int]) -> tuple[int, str] | None:
-    """The most probable K still needing nested sampling, and why (None: none)."""
+def _next_escalation(works: list[KWork], log_pk: np.ndarray, decisive: float, tie: float,
+                     min_gain: float, done: set[int]) -> tuple[int, str] | None:
+    """The most probable K still needing nested sampling, and why (None: none).
+
+    Candidates: the K within ``decisive`` nats of the most probable one whose
+    Laplace value is untrusted, or trusted but within ``TRUSTED_MARGIN`` of the
+    decision boundary (log odds = +-tie) of a non-decisive comparison, then a
+    neighbour of the most probable K whose Laplace value does not exist.  A K
+    above the most probable one whose ML fit gains less than ``min_gain`` nats of
+    log-likelihood over it is not sent: its extra source only fits noise.
+    """
     score = np.array([w.value for w in works]) + log_pk
     finite = np.isfinite(score)
     top = int(np.nanargmax(np.where(finite, score, -np.inf)))
-    competing = [k for k in np.argsort(-np.where(finite, score, -np.inf))
-                 if finite[k] and score[k] >= score[top] - decisive]
+    order = np.argsort(-np.where(finite, score, -np.inf), kind="stable")
+    competing = [int(k) for k in order if finite[k] and score[k] >= score[top] - decisive]
     candidates: list[tuple[int, str]] = []
     for k in competing:
         w = works[k]
-        if k == 0 or w.method == "nested":
+        if k == 0 or w.method == "nested" or _noise_only(works, k, top, min_gain):
             continue
         why = list(w.reasons)
         if len(competing) > 1:
             other = competing[1] if k == top else top
-            why.insert(0, f"not decisive against K={other} "
-                          f"({score[k] - score[other]:+.2f} nats by Laplace)")
+            gap = score[k] - score[other]
+            # a trusted Laplace value (error ~0.3 nats) matters only near the decision
+            if why or abs(abs(gap) - tie) < TRUSTED_MARGIN:
+                why.insert(0, f"not decisive against K={other} ({gap:+.2f} nats by Laplace)")
         if why:
             candidates.append((k, "; ".join(why)))
     for k in (top - 1, top + 1):  # a neighbour whose Laplace value does not exist
-        if 0 < k < len(works) and not finite[k] and works[k].method != "nested":
+        if (0 < k < len(works) and not finite[k] and works[k].method != "nested"
+                and not _noise_only(works, k, top, min_gain)):
             candidates.append((k, "Laplace undefined: " + "; ".join(works[k].reasons)))
     for k, why in candidates:
         if k not in done:
             return k, why
     return None
+
+
+def _noise_only(works: list[KWork], k: int, top: int, min_gain: float) -> bool:
+    """K > top and its ML fit gains < min_gain nats of log L over K = top."""
+    return k > top and works[k].log_likelihood - works[top].log_likelihood < min_gain
 
 
 def _choose(score: np.ndarray, tie: float) -> tuple[int, list[str]]:
@@ -137,6 +155,8 @@ def select_k(
     decisive: float = math.log(100.0),
     tie: float = math.log(3.0),
     max_escalations: int = 2,
+    min_gain: float = 3.0,
+    dlogz: float = 0.5,
     thresholds: Mapping[str, float] | None = None,
     fit_kwargs: Mapping[str, object] | None = None,
 ) -> SelectionResult:
@@ -178,6 +198,13 @@ def select_k(
         mentioning").  0 picks the most probable K.
     max_escalations : int
         At most this many K are sent to nested sampling by ``auto``.
+    min_gain : float
+        ``auto`` does not escalate a K above the most probable one whose ML
+        log-likelihood exceeds that K's by less than this (nats): on K = 1 truths
+        (ring N = 30) the gain of a second source is below 3 nats in 95 % of
+        noise draws.
+    dlogz : float
+        dynesty's stopping tolerance on the remaining evidence (nats).
     thresholds : mapping, optional
         Overrides of :data:`olsbayes.select.diagnostics.THRESHOLDS`.
     fit_kwargs : mapping, optional
@@ -205,7 +232,8 @@ def select_k(
     streams = as_rng(rng).spawn(k_max + 1)
     prior_of = _prior_factory(model, data, priors, i_max)
     log_pk = _count_prior(k_prior, k_max)
-    nested_opts = {"maxcall": maxcall, "nlive": nlive}
+    min_gain = nonnegative_float("min_gain", min_gain)
+    nested_opts = {"maxcall": maxcall, "nlive": nlive, "dlogz": positive_float("dlogz", dlogz)}
 
     pairs = [s.spawn(2) for s in streams]  # (fit, nested) streams per K
     t_fit = time.perf_counter()
@@ -224,24 +252,30 @@ def select_k(
     escalated: dict[int, str] = {}
     if method == "auto":
         while len(escalated) < max_escalations:
-            nxt = _next_escalation(works, log_pk, decisive, set(escalated))
+            nxt = _next_escalation(works, log_pk, decisive, tie, min_gain, set(escalated))
             if nxt is None:
                 break
             k, why = nxt
             escalated[k] = why
             works[k] = nested_work(model, data, works[k], prior_of(k), pairs[k][1],
                                    **nested_opts)
-    return _finish(works, log_pk, method, escalated, tie, decisive, time.perf_counter() - t0)
+    return _finish(works, log_pk, method, escalated, tie, decisive, min_gain,
+                   time.perf_counter() - t0)
 
 
 def _finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict[int, str],
-            tie: float, decisive: float, seconds: float) -> SelectionResult:
+            tie: float, decisive: float, min_gain: float, seconds: float) -> SelectionResult:
     value = np.array([w.value for w in works])
     score = np.where(np.isfinite(value), value + log_pk, -np.inf)
     prob = np.exp(score - score.max())
     prob /= prob.sum()
     best, notes = _choose(score, tie)
     for w in works:
+        if method == "auto" and w.method == "laplace" and w.reasons and w.k > best and (
+                w.log_likelihood - works[best].log_likelihood < min_gain):
+            notes.append(f"K={w.k}: not escalated, its ML fit gains only "
+                         f"{w.log_likelihood - works[best].log_likelihood:.2f} nats of log L "
+                         f"over K={best} (< min_gain={min_gain:g}): the extra source fits noise")
         if not np.isfinite(w.value):
             notes.append(f"K={w.k}: no evidence estimate ({'; '.join(w.reasons)}); p(K) set to 0")
         elif w.method == "laplace" and w.reasons and score[w.k] >= score.max() - decisive:

@@ -1,0 +1,162 @@
+"""select_k: the right K on well-separated scenes, Laplace vs nested, escalation, bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from olsbayes import Model, Ring
+from olsbayes.errors import InputError
+from olsbayes.priors import PoissonCount, ScenePrior, Uniform, default_priors
+from olsbayes.select import (
+    SelectionResult,
+    model_laplace,
+    nested_log_evidence,
+    select_k,
+)
+from olsbayes.select.engine import scalar_log_likelihood
+
+MODEL = Model(Ring(30), 0.01)
+#: Well-separated scenes (every pair >= 5.7 sensor spacings apart and >= 0.46 rad
+#: from pi, away from the four-source degeneracy of pairs about pi apart).
+SCENES = {
+    0: [],
+    1: [(0.4, 1.0)],
+    2: [(-0.6, 1.0), (1.5, 0.6)],
+    3: [(-2.2, 0.8), (-0.5, 1.0), (1.3, 0.6)],
+    4: [(-1.5, 1.0), (-0.3, 0.6), (0.9, 0.8), (2.1, 0.7)],
+}
+
+
+def _data(k: int, seed: int) -> np.ndarray:
+    x = np.array(SCENES[k], dtype=float).ravel()
+    return MODEL.simulate(x, np.random.default_rng([k, seed]))
+
+
+@pytest.mark.parametrize("k", sorted(SCENES))
+def test_laplace_selects_the_true_number_of_sources(k):
+    for seed in range(2):
+        res = select_k(MODEL, _data(k, seed), k_max=4, method="laplace", rng=seed, i_max=2.0)
+        assert isinstance(res, SelectionResult)
+        assert res.best == k, res.table()
+        assert res.probabilities[k] > 0.6
+        assert res.probabilities.sum() == pytest.approx(1.0)
+        assert res[0].method == "closed-form" and res[0].log_evidence == pytest.approx(
+            res[0].log_likelihood)
+
+
+def test_laplace_and_nested_agree_on_a_well_separated_two_source_scene():
+    data = _data(2, 0)
+    prior = default_priors(MODEL, 2, i_max=2.0)
+    res = select_k(MODEL, data, k_max=2, method="laplace", rng=0, i_max=2.0)
+    ev = res[2]
+    assert ev.trusted, ev.reasons
+    log_z, _, _ = model_laplace(MODEL, ev.params, ev.log_likelihood, prior)
+    assert float(log_z) == pytest.approx(ev.log_evidence)
+    out = nested_log_evidence(scalar_log_likelihood(MODEL, data), prior.ppf, 4,
+                              periodic=prior.periodic_indices, rng=1, maxcall=60_000,
+                              nlive=50, dlogz=0.5)
+    assert out.converged
+    assert abs(out.log_evidence - ev.log_evidence) < 3 * out.error + 0.5
+
+
+def test_auto_escalates_only_untrusted_k_and_says_why():
+    """Two sources 1.5 spacings apart: K=2 wins but its Laplace value is not trusted."""
+    h = 2 * np.pi / 30
+    x = np.array([0.2, 1.0, 0.2 + 1.5 * h, 1.0])
+    data = MODEL.simulate(x, np.random.default_rng(7))
+    res = select_k(MODEL, data, k_max=2, method="auto", rng=3, i_max=2.0, nlive=50,
+                   maxcall=60_000, max_escalations=1)
+    assert len(res.escalated) <= 1
+    for k, why in res.escalated.items():
+        assert res[k].method == "nested" and np.isfinite(res[k].error)
+        assert np.isfinite(res[k].laplace) or "undefined" in why
+        assert why
+    for ev in res.evidences:
+        if ev.k not in res.escalated and ev.k > 0:
+            assert ev.method == "laplace"
+    assert "K" in res.table() and json.dumps(res.to_dict())
+
+
+def test_same_seed_same_result_and_k_prior_enters_the_posterior():
+    data = _data(1, 0)
+    a = select_k(MODEL, data, k_max=2, method="laplace", rng=5, i_max=2.0)
+    b = select_k(MODEL, data, k_max=2, method="laplace", rng=5, i_max=2.0)
+    np.testing.assert_array_equal(a.log_evidence, b.log_evidence)
+    c = select_k(MODEL, data, k_max=2, method="laplace", rng=5, i_max=2.0,
+                 k_prior=PoissonCount(1.0, 2))
+    lp = PoissonCount(1.0, 2).log_prob(np.arange(3))
+    np.testing.assert_allclose(c.log_prior_k, lp)
+    score = a.log_evidence + lp
+    finite = np.isfinite(score)
+    want = np.exp(score[finite] - score[finite].max())
+    np.testing.assert_allclose(c.probabilities[finite], want / want.sum())
+
+
+def test_information_criteria_are_penalised_log_likelihoods():
+    data = _data(2, 1)
+    bic = select_k(MODEL, data, k_max=3, method="bic", rng=0)
+    aic = select_k(MODEL, data, k_max=3, method="aic", rng=0)
+    # (no assertion on bic.best: BIC/AIC do pick a spurious source on some draws)
+    assert aic.best >= bic.best  # AIC's penalty per parameter (1) < BIC's (log(30)/2)
+    for ev_b, ev_a in zip(bic.evidences[1:], aic.evidences[1:]):
+        p = ev_b.n_params
+        assert ev_b.log_evidence == pytest.approx(ev_b.log_likelihood - 0.5 * p * math.log(30))
+        assert ev_a.log_evidence == pytest.approx(ev_a.log_likelihood - p)
+
+
+def test_a_tie_is_broken_towards_the_smaller_k():
+    from olsbayes.select.select import _choose
+
+    best, notes = _choose(np.array([-np.inf, 10.0, 10.5, 3.0]), tie=math.log(3))
+    assert best == 1 and "smaller" in notes[0]
+    best, notes = _choose(np.array([-np.inf, 10.0, 12.0]), tie=math.log(3))
+    assert best == 2 and notes == []
+
+
+def test_user_priors_by_mapping_and_callable():
+    data = _data(1, 1)
+    priors = {k: ScenePrior(MODEL, k, Uniform(0.0, 2.0)) for k in range(3)}
+    a = select_k(MODEL, data, k_max=2, method="laplace", priors=priors, rng=0)
+    b = select_k(MODEL, data, k_max=2, method="laplace", priors=priors.__getitem__, rng=0)
+    c = select_k(MODEL, data, k_max=2, method="laplace", i_max=2.0, rng=0)
+    np.testing.assert_allclose(a.log_evidence, b.log_evidence)
+    np.testing.assert_allclose(a.log_evidence, c.log_evidence)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"k_max": -1}, "k_max"),
+        ({"k_max": 9}, "k_max"),
+        ({"k_max": 2.5}, "k_max"),
+        ({"method": "bayes"}, "method"),
+        ({"method": "laplace", "priors": "flat"}, "priors"),
+        ({"method": "laplace", "priors": {1: None}, "k_max": 1}, "priors"),
+        ({"method": "laplace", "priors": {}, "k_max": 1}, "K = 1"),
+        ({"method": "laplace", "priors": {}, "i_max": 1.0}, "not both"),
+        ({"method": "laplace", "i_max": -1.0}, "i_max"),
+        ({"method": "laplace", "k_prior": 3}, "k_prior"),
+        ({"tie": -1.0}, "tie"),
+        ({"maxcall": 10}, "maxcall"),
+    ],
+)
+def test_bad_arguments_name_the_argument(kwargs, match):
+    data = _data(1, 0)
+    args = {"k_max": 2, "rng": 0, **kwargs}
+    with pytest.raises(InputError, match=match):
+        select_k(MODEL, data, **args)
+
+
+def test_bad_model_and_data():
+    with pytest.raises(InputError, match="model"):
+        select_k("ring", np.zeros(30))
+    with pytest.raises(InputError, match="data"):
+        select_k(MODEL, np.zeros(29))
+    with pytest.raises(InputError, match="one snapshot"):
+        select_k(MODEL, np.zeros((2, 30)))
+    with pytest.raises(InputError, match="finite"):
+        select_k(MODEL, np.full(30, np.nan))
