@@ -24,6 +24,7 @@ from .geometry import Plate, Ring, SensorArray, Sphere, wrap_angle
 from .ml import MLResult, fit_ml
 from .model import Model
 from .scene import Scene
+from .select import SelectionResult, select_k
 from .sensitivity import Cosine, CosinePower, CustomSensitivity, Sensitivity, get_sensitivity
 from .studies import run_study
 
@@ -57,6 +58,9 @@ __all__ = [
     "MLResult",
     # studies
     "run_study",
+    # number of sources
+    "select_k",
+    "SelectionResult",
     # errors and warnings
     "OlsBayesError",
     "InputError",
