@@ -31,6 +31,7 @@ COMMANDS: tuple[str, ...] = (
     "crlb",
     "fit",
     "study",
+    "select",
 )
 
 
