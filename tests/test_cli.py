@@ -90,9 +90,13 @@ def test_simulate_json_with_config(tmp_path, capsys):
 
 
 def test_demo_writes_figure_and_json(tmp_path, capsys):
-    code, out, _ = run_cli(capsys, "demo", "--out", str(tmp_path / "d"), "--json")
+    code, out, _ = run_cli(capsys, "demo", "--out", str(tmp_path / "d"), "--json",
+                           "--no-posterior")
     assert code == 0
     payload = json.loads(out)
+    assert "posterior" not in payload
+    # an efficient estimator: every error below 5 CRLB standard deviations
+    assert np.all(np.abs(payload["fit"]["error_over_std"]) < 5.0)
     assert payload["n_sensors"] == 30 and payload["sigma"] == 0.01
     assert payload["truth"]["intensities"] == [0.2, 1.0]  # canonical order (by angle)
     for fig in payload["figures"]:
@@ -131,8 +135,9 @@ def test_real_subprocess_demo(tmp_path):
     proc = subprocess.run(cmd + ["demo", "--out", str(tmp_path / "demo")], cwd=tmp_path,
                           env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert "CRLB" in proc.stdout
-    assert (tmp_path / "demo" / "response.png").exists()
+    assert "CRLB" in proc.stdout and "Posterior" in proc.stdout
+    for name in ("response.png", "posterior/corner.png", "posterior/report.html"):
+        assert (tmp_path / "demo" / name).stat().st_size > 1000
 
 
 def test_fit_recovers_simulated_scene_within_crlb(tmp_path, capsys):
@@ -159,3 +164,29 @@ def test_fit_batch_file_and_missing_k(tmp_path, capsys):
     code, _, err = run_cli(capsys, "fit", "--data", str(readings))
     assert_one_line_error(code, err)
     assert "--n-sources" in err
+
+
+def test_fit_posterior_report(tmp_path, capsys):
+    """--report runs emcee from the ML point and writes the report; a short run warns."""
+    rep = tmp_path / "rep"
+    code, out, err = run_cli(capsys, "fit", "--report", str(rep), "--seed", "1",
+                             "--max-steps", "200", "--json")
+    assert code == 0
+    post = json.loads(out)["posterior"]
+    assert (rep / "report.html").exists() and (rep / "corner.png").exists()
+    assert np.all(np.isfinite(post["crlb_sd"])) and len(post["estimate"]) == 4
+    # 200 steps are too few for 50 autocorrelation times: one line, a warning
+    assert all(line.startswith("olsbayes: warning: ConvergenceWarning")
+               for line in err.strip().splitlines())
+
+
+def test_fit_posterior_rejects_contradictory_options(tmp_path, capsys):
+    readings = tmp_path / "r.txt"
+    main(["simulate", "--repeats", "2", "--out", str(readings)])
+    capsys.readouterr()
+    code, _, err = run_cli(capsys, "fit", "--data", str(readings), "--n-sources", "2",
+                           "--posterior")
+    assert_one_line_error(code, err)
+    assert "one measurement" in err
+    code, _, err = run_cli(capsys, "fit", "--posterior", "--max-steps", "0")
+    assert_one_line_error(code, err)

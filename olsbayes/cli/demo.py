@@ -2,8 +2,10 @@
 
 Default scene: a ring of N = 30 sub-sensors with the clipped-cosine law, noise
 sigma = 0.01, two sources pi apart with intensities 1.0 and 0.2.  Prints the
-truth, the maximum-likelihood estimate (when the ML engine is installed) and
-the exact CRLB next to the paper's Eq. 3, and writes figures to --out.
+truth, the exact CRLB next to the paper's Eq. 3 / Eq. 4, the maximum-likelihood
+estimate, and the emcee posterior sd next to the CRLB; writes the response plot
+to --out and the posterior report (corner plot with CRLB ellipses, traces,
+tables, NetCDF, report.html) to --out/posterior/.
 
 Example:
   olsbayes demo
@@ -18,6 +20,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import parse_config
 from ..crlb import crlb
@@ -30,7 +34,7 @@ from ._common import (
     output_dir,
 )
 from .crlb import crlb_payload, crlb_text
-from .fit import fit_payload, fit_text
+from .fit import fit_payload, fit_text, posterior_block
 
 __all__ = ["register", "run"]
 
@@ -42,6 +46,8 @@ def register(subparsers: Any) -> None:
                    help="folder for figures (default: olsbayes-demo/)")
     add_seed_arg(p, help="seed of the simulated readings (default: [data] seed of the scene)")
     p.add_argument("--no-figures", action="store_true", help="do not write figures")
+    p.add_argument("--no-posterior", action="store_true",
+                   help="skip the emcee posterior (and its report in DIR/posterior/)")
     p.add_argument("--print-config", action="store_true",
                    help="print the demo's TOML configuration and exit")
     add_json_arg(p)
@@ -81,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     data = data_from_config(cfg, model, truth, rng=seed)
     out = None if args.no_figures else output_dir(args.out)
     bound = crlb(model, truth)
-    fit = fit_ml(model, data, truth.n_sources, rng=seed)
+    ml_rng, post_rng = np.random.SeedSequence(seed).spawn(2)
+    fit = fit_ml(model, data, truth.n_sources, rng=ml_rng)
     payload = crlb_payload(model, truth, bound)
     payload.update(seed=seed, readings=data, fit=fit_payload(model, fit, truth))
     text = [
@@ -92,8 +99,15 @@ def run(args: argparse.Namespace) -> int:
         f"{float(fit.log_likelihood):.6g}; sd = Fisher at the estimate:",
         fit_text(model, fit, truth),
     ]
+    figs = [] if out is None else _figures(out, model, data, truth, fit.params)
+    if not args.no_posterior:
+        report = None if out is None else out / "posterior"
+        payload["posterior"], post_text = posterior_block(
+            model, data, truth.n_sources, truth, post_rng, report=report)
+        text.append(post_text)
+        if report is not None:
+            figs += [report / "corner.png", report / "trace.png"]
     if out is not None:
-        figs = _figures(out, model, data, truth, fit.params)
         payload["figures"] = figs
         text.append("Figures: " + ", ".join(str(p) for p in figs))
     emit(args, payload, "\n".join(text))

@@ -4,10 +4,15 @@ Readings come from --data FILE, else from the config's [data] section (a file
 or a simulation of [scene]).  K comes from --n-sources, else from [scene].
 A file with T rows is fitted row by row in one batched call.
 
+With --posterior the ML point seeds an emcee ensemble (olsbayes.posterior) and
+the posterior sd is printed next to the CRLB; --report DIR also writes corner and
+trace plots, summary tables, the NetCDF posterior and report.html into DIR.
+
 Example:
   olsbayes simulate --out readings.txt
   olsbayes fit --data readings.txt --n-sources 2
   olsbayes fit scene.toml --json --method multistart --seed 3
+  olsbayes fit --posterior --report fit-report --seed 1
 """
 
 from __future__ import annotations
@@ -31,9 +36,10 @@ from ._common import (
     emit,
     format_table,
     load_cli_config,
+    output_dir,
 )
 
-__all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs"]
+__all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs", "posterior_block"]
 
 
 def register(subparsers: Any) -> None:
@@ -46,7 +52,14 @@ def register(subparsers: Any) -> None:
                    help="number of sources to fit (default: as many as in [scene])")
     p.add_argument("--method", choices=("fast", "multistart"), default="fast",
                    help="fast (polynomial-time, default) or multistart (the paper's baseline)")
-    add_seed_arg(p, help="seed of the multistart starts and of a [data] simulation")
+    add_seed_arg(p, help="seed of the multistart starts, the sampler and a [data] simulation")
+    p.add_argument("--posterior", action="store_true",
+                   help="also sample the posterior with emcee, seeded at the ML point")
+    p.add_argument("--report", type=Path, default=None, metavar="DIR",
+                   help="write the posterior report (corner plot, tables, NetCDF, HTML) to DIR;"
+                        " implies --posterior")
+    p.add_argument("--max-steps", type=int, default=20000, metavar="S",
+                   help="step cap of the emcee run (default 20000)")
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -130,11 +143,59 @@ def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = N
     return "\n".join(lines)
 
 
+def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
+    """Contradictory or out-of-range posterior options fail before any fitting."""
+    if data.ndim != 1:
+        raise InputError(
+            f"--posterior/--report fit one measurement; the readings hold {data.shape[0]} "
+            "rows (give a file with one row)"
+        )
+    if not 1 <= args.max_steps <= 10_000_000:
+        raise InputError(f"--max-steps must be in [1, 10000000]; got {args.max_steps}")
+    if args.report is not None:
+        output_dir(args.report, "--report")
+
+
+def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None, rng: Any,
+                    max_steps: int = 20000, report: Path | None = None
+                    ) -> tuple[dict[str, Any], str]:
+    """Sample the posterior (and write the report into ``report``): payload and text."""
+    from ..posterior import sample
+
+    folder = None if report is None else output_dir(report, "--report")
+    post = sample(model, data, k, rng=rng, progress=False, max_steps=max_steps)
+    check = post.crlb_check()
+    payload: dict[str, Any] = {
+        "estimate": post.estimate, "posterior_sd": check.posterior_sd, "crlb_sd": check.crlb_sd,
+        "ratio": check.ratio, "flagged": check.flagged, "converged": post.converged,
+        "n_steps": post.n_steps, "tau": post.tau,
+    }
+    names = list(post.names)
+    rows = [[n, post.estimate[i], check.posterior_sd[i], check.crlb_sd[i], check.ratio[i]]
+            for i, n in enumerate(names)]
+    text = ["", f"Posterior (emcee, {post.n_steps} steps, converged={post.converged}):",
+            format_table(["param", "mean", "posterior sd", "CRLB sd", "ratio"], rows)]
+    if folder is not None:
+        from ..posterior.report import write_report
+
+        files = write_report(post, folder, truths=truth)
+        payload["report"] = files.html
+        text.append(f"Report: {files.html}")
+    return payload, "\n".join(text)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..ml import fit_ml
 
     model, truth, data, k = load_fit_inputs(args)
-    result = fit_ml(model, data, k, method=args.method, rng=args.seed)
+    want_posterior = args.posterior or args.report is not None
+    if want_posterior:
+        _check_posterior_args(args, data)
+    # --seed S simulates exactly the readings of `olsbayes simulate --seed S`; the
+    # optimiser and the sampler get independent child streams of the same seed
+    ml_rng, post_rng = (None, None) if args.seed is None else np.random.SeedSequence(
+        args.seed).spawn(2)
+    result = fit_ml(model, data, k, method=args.method, rng=ml_rng)
     payload = fit_payload(model, result, truth)
     if result.is_batch:
         blocks = [f"row {t}: log-likelihood {float(result.log_likelihood[t]):.6g}\n"
@@ -145,5 +206,9 @@ def run(args: argparse.Namespace) -> int:
     head = (f"{model!r}\nML fit ({result.method}) of K = {k} source(s); sd = Fisher "
             "(CRLB) at the estimate; locations in "
             + ("rad" if model.kind != "position" else "length units"))
+    if want_posterior:
+        payload["posterior"], text = posterior_block(model, data, k, truth, post_rng,
+                                                     args.max_steps, args.report)
+        blocks.append(text)
     emit(args, payload, "\n".join([head, *blocks]))
     return 0
