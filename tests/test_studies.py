@@ -277,3 +277,60 @@ def test_cli_study_runs_resumes_and_refuses(tmp_path, capsys):
         assert len(err) == 1 and message in err[0], err
     assert main(["study", str(cfg), "--resume", "--json", "--no-progress"]) == 0
     assert '"seed": "3"' in capsys.readouterr().out
+
+
+def test_scores_match_exchangeable_sources_and_the_crlb():
+    import warnings
+
+    from olsbayes import Model, Ring, Scene, crlb
+    from olsbayes.studies.scoring import score
+
+    model = Model(Ring(16), 0.01)
+    truth = np.array([[3.1, 1.0, -2.0, 0.5]])
+    std = crlb(model, Scene(directions=[3.1, -2.0], intensities=[1.0, 0.5])).std
+    d = np.array([2e-3, -1e-3, 4e-3, 2e-3])
+    # estimate: sources swapped, the first one wrapped across +-pi
+    est = np.array([[-2.0 + d[2], 0.5 + d[3], 3.1 + d[0] - 2 * np.pi, 1.0 + d[1]]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = score(model, est, truth)
+    z = d / std
+    np.testing.assert_allclose(s["dir_z2"], np.mean(z[[0, 2]] ** 2), rtol=1e-9)
+    np.testing.assert_allclose(s["int_z2"], np.mean(z[[1, 3]] ** 2), rtol=1e-9)
+    np.testing.assert_allclose(s["max_z"], np.abs(z).max(), rtol=1e-9)
+    np.testing.assert_allclose(s["dir_err_rms"], np.sqrt(np.mean(d[[0, 2]] ** 2)), rtol=1e-9)
+    assert s["resolvable"].all() and not s["on_kink"].any()
+
+
+def test_batched_ml_trials_do_not_depend_on_chunking():
+    from olsbayes.studies.estimators import ring_estimate
+
+    grid = {"method": ["fast_batched"], "n_sources": [1, 2]}
+    fixed = {"n_sensors": 12, "sigma": 0.02}
+    a, b = (run_study(ring_estimate, grid, 12, fixed=fixed, executor="serial", rng=4,
+                      chunk_size=c, progress=False) for c in (12, 5))
+    for v in ("dir_err_rms", "dir_z2", "max_z", "k_hat", "resolvable"):
+        np.testing.assert_allclose(a[v], b[v], rtol=1e-7, atol=1e-12)
+    # an efficient estimator: mean (error / CRLB)^2 ~ 1, within 5 standard errors
+    # (z2 of one direction is ~ chi2_1: sd sqrt(2) per trial, 12 trials per cell)
+    z2 = a["dir_z2"].sel(n_sources=1).values
+    assert abs(z2.mean() - 1) < 5 * np.sqrt(2 / z2.size)
+    with pytest.raises(InputError, match="method must be"):
+        ring_estimate({"method": "multistart_x", "n_sensors": 8, "sigma": 0.1},
+                      [np.random.default_rng(0)])
+
+
+def test_rank_statistics_are_uniform_for_an_exact_posterior():
+    from olsbayes.studies.sbc import N_DRAWS, rank_test, ranks_of
+
+    rng = np.random.default_rng(3)
+    mu = rng.normal(size=400)  # prior N(0, 1), data y ~ N(mu, 1), posterior N(y/2, 1/2)
+    y = mu + rng.normal(size=400)
+    ranks = np.array([ranks_of(np.array([m]), (yy / 2 + np.sqrt(0.5) * rng.normal(
+        size=(N_DRAWS, 1)))) for m, yy in zip(mu, y)])[:, 0]
+    good = rank_test(ranks, N_DRAWS, 10, rng)
+    assert good.counts.sum() == 400 and good.p_value > 1e-3 and good.ks_p_value > 1e-3
+    # an overconfident posterior (sd halved) gives a U-shaped, rejected histogram
+    bad = np.array([ranks_of(np.array([m]), (yy / 2 + 0.35 * rng.normal(size=(N_DRAWS, 1))))
+                    for m, yy in zip(mu, y)])[:, 0]
+    assert rank_test(bad, N_DRAWS, 10, rng).p_value < 1e-3

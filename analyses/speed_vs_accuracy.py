@@ -1,0 +1,119 @@
+"""Speed vs accuracy of every estimator: time per estimate against RMSE / CRLB.
+
+Ring of N sub-sensors (16 quick, 30 --full), K in {1, 2, 3} evenly spread
+sources of intensity 1 at a uniformly random rotation, noise sigma in
+{1e-3, 1e-2, 1e-1}.  Methods (:func:`olsbayes.studies.estimators.ring_estimate`):
+ML fast (one fit per call), ML fast batched (all trials of a cell in one call),
+the paper's multistart baseline with M = 2, 5, 20 starts, the posterior mean of
+emcee chains of a few fixed lengths, and the posterior mean of dynesty nested
+sampling under a likelihood-call cap.
+
+y = sqrt(mean over trials of mean over sources of (error / CRLB std)^2) of the
+directions (1 = efficient; the CRLB is evaluated at each trial's truth); its
+standard error by the delta method.  x = median wall time per estimate measured
+inside the trial (2 worker processes share the machine's 2 cores; for the
+batched fit, batch time / batch size).  "fail" = fraction of trials with some
+parameter off by more than 5 CRLB std.
+
+Outputs in --out: speed_vs_accuracy.png, speed_vs_accuracy.nc (summary), one
+NetCDF per method group (raw trials, resumable checkpoints), speed_vs_accuracy.txt.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _study_cli import parser, study, table  # noqa: E402
+
+from olsbayes.studies.estimators import ring_estimate  # noqa: E402
+
+SIGMAS = [1e-3, 1e-2, 1e-1]
+KS = [1, 2, 3]
+QUICK = {"fast": 40, "fast_batched": 40, "multistart_2": 6, "multistart_5": 4,
+         "multistart_20": 2, "posterior_200": 3, "posterior_1000": 2, "nested": 2}
+FULL = {"fast": 400, "fast_batched": 400, "multistart_2": 100, "multistart_5": 60,
+        "multistart_20": 30, "posterior_200": 40, "posterior_1000": 30, "posterior_5000": 20,
+        "nested": 20}
+
+
+def summarise(ds, method: str) -> dict:
+    z2 = ds["dir_z2"].where(np.isfinite(ds["dir_z2"]))
+    n = z2.count("trial")
+    m = z2.mean("trial")
+    se = z2.std("trial", ddof=1) / np.sqrt(n)
+    ratio = np.sqrt(m)
+    return {
+        "rmse_ratio": ratio.squeeze("method", drop=True),
+        "rmse_ratio_se": (se / (2 * ratio)).squeeze("method", drop=True),
+        "seconds": ds["seconds"].median("trial").squeeze("method", drop=True),
+        "fail": (ds["max_z"] > 5).mean("trial").squeeze("method", drop=True),
+        "converged": ds["converged"].mean("trial").squeeze("method", drop=True),
+        "n": n.squeeze("method", drop=True),
+    }
+
+
+def plot(summary, path) -> None:
+    import matplotlib.pyplot as plt
+
+    methods = list(summary.method.values)
+    markers = {1: "o", 2: "s", 3: "^"}
+    fig, axes = plt.subplots(1, len(SIGMAS), figsize=(5 * len(SIGMAS), 4.6), sharey=True)
+    for ax, sig in zip(axes, SIGMAS):
+        for i, meth in enumerate(methods):
+            for k in KS:
+                c = summary.sel(method=meth, sigma=sig, n_sources=k)
+                ax.errorbar(float(c.seconds), float(c.rmse_ratio), yerr=float(c.rmse_ratio_se),
+                            fmt=markers[k], color=f"C{i}", ms=6, capsize=2,
+                            label=meth if (k == 1) else None)
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("wall time per estimate (s)")
+        ax.set_title(f"sigma = {sig:g}  (circle K=1, square K=2, triangle K=3)", fontsize=9)
+    axes[0].set_ylabel("direction RMSE / CRLB")
+    axes[-1].legend(fontsize=8, loc="upper right")
+    fig.suptitle("Speed vs accuracy of the estimators (dashed: the Cramér-Rao bound)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    args = parser("speed_vs_accuracy", __doc__).parse_args()
+    import xarray as xr
+
+    plan = FULL if args.full else QUICK
+    fixed = {"n_sensors": 30 if args.full else 16, "intensity": 1.0,
+             "maxcall": 50000 if args.full else 10000}
+    parts = []
+    for j, (method, n) in enumerate(plan.items()):
+        ds = study(args, f"sva-{method}", ring_estimate,
+                   {"method": [method], "sigma": SIGMAS, "n_sources": KS}, n, fixed=fixed,
+                   seed_offset=j, chunk_size=n if method == "fast_batched" else None)
+        s = summarise(ds, method)
+        parts.append(xr.Dataset(s).expand_dims(method=[method]))
+    summary = xr.concat(parts, "method")
+    summary.attrs.update({"n_sensors": fixed["n_sensors"], "seed": args.seed,
+                          "nested_maxcall": fixed["maxcall"]})
+    rows = []
+    for meth in summary.method.values:
+        for sig in SIGMAS:
+            for k in KS:
+                c = summary.sel(method=meth, sigma=sig, n_sources=k)
+                rows.append([str(meth), sig, k, int(c.n), float(c.rmse_ratio),
+                             float(c.rmse_ratio_se), float(c.seconds), float(c.fail),
+                             float(c.converged)])
+    text = table(["method", "sigma", "K", "n", "RMSE/CRLB", "se", "s/estimate", "fail>5sd",
+                  "converged"], rows)
+    print(text)
+    summary.to_netcdf(args.out / "speed_vs_accuracy.nc", engine="h5netcdf")
+    (args.out / "speed_vs_accuracy.txt").write_text(text + "\n")
+    plot(summary, args.out / "speed_vs_accuracy.png")
+
+
+if __name__ == "__main__":
+    main()

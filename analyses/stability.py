@@ -1,0 +1,161 @@
+"""Where each estimator fails: failure rate vs source separation and SNR, and on the kink.
+
+Ring of N = 16 sub-sensors (spacing 2 pi / N), two sources of intensity 1 at a
+uniformly random rotation, separated by 0.25 ... 4 sensor spacings (below one
+spacing the Fisher matrix is singular on a ring of even N), noise sigma giving
+SNR = I / sigma from 3 to 1000.  A second study puts the first source exactly
+90 deg from a sub-sensor -- on the kink of the clipped cosine -- at a
+separation of 4 spacings.
+
+A trial fails when
+  * error: some parameter is off by more than 5 CRLB std (CRLB at the truth);
+    where the truth is unresolvable (infinite CRLB) the direction RMS error
+    exceeds half the separation instead (the sources were not told apart);
+  * non-convergence: the optimiser's stopping rule failed (ML), or the chain
+    was shorter than 50 autocorrelation times (posterior of fixed length);
+  * wrong K: Laplace-evidence selection (:func:`olsbayes.select.select_k`, ML
+    fast only) picked K != 2.
+Marked on the maps: the Eq. 4 "random guessing" limit (separation pi / N), the
+ResolutionWarning region (some trial's Fisher matrix singular) and the
+Laplace-trust threshold of select (2 spacings).
+
+Outputs in --out: stability.png, stability.nc (failure rates), raw study NetCDF
+files, stability.txt.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _study_cli import parser, study, table  # noqa: E402
+
+from olsbayes.studies.estimators import ring_estimate  # noqa: E402
+
+N = 16
+SPACING = 2 * np.pi / N
+SEPS = [0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0]  # in sensor spacings
+SIGMAS = [1e-3, 1e-2, 3e-2, 1e-1, 3e-1]
+QUICK = {"fast": 20, "multistart_5": 4, "posterior_300": 3}
+FULL = {"fast": 200, "multistart_5": 40, "multistart_20": 20, "posterior_300": 30,
+        "posterior_2000": 20}
+
+
+def failures(ds) -> dict:
+    """Failure indicators per trial from the scores of ring_estimate."""
+    sep = ds["separation"] if "separation" in ds.coords else ds.attrs["separation"]
+    res = ds["resolvable"].astype(bool)
+    err = (res & (ds["max_z"] > 5)) | (~res & (ds["dir_err_rms"] > sep / 2))
+    conv = ~ds["converged"].astype(bool)
+    wrong = (ds["k_hat"] >= 0) & (ds["k_hat"] != 2)
+    return {"fail_error": err, "fail_convergence": conv, "fail_k": wrong,
+            "fail_any": err | conv | wrong}
+
+
+def rates(ds) -> "object":
+    import xarray as xr
+
+    f = failures(ds)
+    out = xr.Dataset({k: v.mean("trial") for k, v in f.items()})
+    out["unresolvable"] = (~ds["resolvable"].astype(bool)).any("trial")
+    out["n"] = ds.sizes["trial"]
+    return out
+
+
+def plot(maps, kink, path) -> None:
+    import matplotlib.pyplot as plt
+
+    methods = list(maps.method.values)
+    fig, axes = plt.subplots(1, len(methods) + 1, figsize=(4.3 * (len(methods) + 1), 4.2))
+    snr = 1 / np.array(SIGMAS)
+    for ax, meth in zip(axes, methods):
+        m = maps.sel(method=meth)
+        im = ax.pcolormesh(np.arange(len(SEPS) + 1), np.arange(len(SIGMAS) + 1),
+                           m.fail_any.transpose("sigma", "separation").values, vmin=0, vmax=1,
+                           cmap="magma_r")
+        unres = m.unresolvable.transpose("sigma", "separation").values
+        for (i, j) in zip(*np.nonzero(unres)):
+            ax.add_patch(plt.Rectangle((j, i), 1, 1, fill=False, hatch="///", ec="0.5", lw=0))
+        seps = np.array(SEPS)
+        x_eq4 = np.interp(0.5, seps, np.arange(len(SEPS))) + 0.5
+        x_lap = np.interp(2.0, seps, np.arange(len(SEPS))) + 0.5
+        ax.axvline(x_eq4, color="c", lw=2, label="Eq. 4 limit pi/N")
+        ax.axvline(x_lap, color="g", lw=1.5, ls="--", label="select: Laplace trusted from here")
+        ax.set_xticks(np.arange(len(SEPS)) + 0.5, [f"{s:g}" for s in SEPS])
+        ax.set_yticks(np.arange(len(SIGMAS)) + 0.5, [f"{s:.0f}" for s in snr])
+        ax.set_xlabel("separation (sensor spacings 2 pi / N)")
+        ax.set_title(f"{meth}: failure rate", fontsize=10)
+    axes[0].set_ylabel("SNR = I / sigma")
+    axes[0].legend(fontsize=7, loc="lower right")
+    fig.colorbar(im, ax=axes[len(methods) - 1], fraction=0.05)
+    ax = axes[-1]
+    width = 0.8 / (2 * len(methods))
+    for i, meth in enumerate(methods):
+        for j, kk in enumerate((False, True)):
+            y = kink.sel(method=meth, kink=kk).fail_any.values
+            ax.bar(np.arange(len(kink.sigma)) + (2 * i + j) * width, y, width,
+                   color=f"C{i}", alpha=1.0 if kk else 0.45,
+                   label=f"{meth}{' on kink' if kk else ''}")
+    ax.set_xticks(np.arange(len(kink.sigma)) + 0.4, [f"SNR {1 / s:g}" for s in kink.sigma.values])
+    ax.set_ylabel("failure rate")
+    ax.set_title("source on the costn kink (solid) vs not (pale)", fontsize=10)
+    ax.legend(fontsize=7)
+    fig.suptitle(f"Stability on a ring of N = {N} (hatched: Fisher matrix singular "
+                 "-> ResolutionWarning)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    args = parser("stability", __doc__).parse_args()
+    import xarray as xr
+
+    plan = FULL if args.full else QUICK
+    maps, kinks = [], []
+    for j, (method, n) in enumerate(plan.items()):
+        fixed = {"n_sensors": N, "n_sources": 2, "intensity": 1.0, "select": method == "fast"}
+        ds = study(args, f"stab-{method}", ring_estimate,
+                   {"method": [method], "separation": [s * SPACING for s in SEPS],
+                    "sigma": SIGMAS}, n, fixed=fixed, seed_offset=j)
+        maps.append(rates(ds).assign_coords(separation=SEPS))
+        dk = study(args, f"stab-kink-{method}", ring_estimate,
+                   {"method": [method], "kink": [False, True], "sigma": [1e-3, 1e-2, 1e-1]},
+                   n, fixed={**fixed, "separation": 4 * SPACING}, seed_offset=100 + j)
+        dk.attrs["separation"] = 4 * SPACING
+        kinks.append(rates(dk))
+        assert bool(dk["on_kink"].sel(kink=True).all()) and not bool(
+            dk["on_kink"].sel(kink=False).any())
+    maps = xr.concat(maps, "method")
+    kink = xr.concat(kinks, "method")
+    rows = []
+    for meth in maps.method.values:
+        for sig in SIGMAS:
+            r = maps.sel(method=meth, sigma=sig)
+            rows.append([str(meth), f"{1 / sig:g}"] + [f"{v:.2f}" + ("*" if u else "")
+                        for v, u in zip(r.fail_any.values, r.unresolvable.values)])
+    text = ("failure rate (any cause) vs separation in sensor spacings; * = Fisher singular\n"
+            + table(["method", "SNR"] + [f"{s:g}" for s in SEPS], rows))
+    rows = []
+    for meth in kink.method.values:
+        for sig in kink.sigma.values:
+            for kk in (False, True):
+                r = kink.sel(method=meth, sigma=sig, kink=kk)
+                rows.append([str(meth), f"{1 / sig:g}", str(kk), float(r.fail_error),
+                             float(r.fail_convergence), float(r.fail_k), float(r.fail_any),
+                             int(r.n)])
+    text += "\n\nsource on the costn kink (separation 4 spacings)\n" + table(
+        ["method", "SNR", "kink", "error", "non-conv", "wrong K", "any", "n"], rows)
+    print(text)
+    xr.Dataset({"map_" + k: v for k, v in maps.items()} | {"kink_" + k: v.rename(
+        sigma="kink_sigma") for k, v in kink.items()}).to_netcdf(
+        args.out / "stability.nc", engine="h5netcdf")
+    (args.out / "stability.txt").write_text(text + "\n")
+    plot(maps, kink, args.out / "stability.png")
+
+
+if __name__ == "__main__":
+    main()
