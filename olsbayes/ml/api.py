@@ -57,7 +57,7 @@ def fit_ml(
     grid: np.ndarray | None = None,
     n_starts: int = 20,
     n_restarts: int = 4,
-    restart_scale: float = 6.0,
+    restart_scale: float = 3.0,
     n_coarse: int = 3,
     max_iter: int | None = None,
     warn: bool = True,

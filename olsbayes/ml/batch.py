@@ -33,6 +33,7 @@ class LMOutcome:
     chi2: np.ndarray  # (T,) sum of squared residuals (not divided by sigma^2)
     converged: np.ndarray  # (T,) bool
     n_evaluations: np.ndarray  # (T,) int
+    stalled: np.ndarray | None = None  # (T,) bool, stopped with no descent step
 
 
 def _z_floor(model: Model) -> float:
@@ -61,25 +62,30 @@ def _chi2(model: Model, x: np.ndarray, data: np.ndarray) -> np.ndarray:
 def _lm_step(
     model: Model, x: np.ndarray, data: np.ndarray, lam: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One damped Gauss–Newton proposal; returns (x_new, chi2_old, predicted decrease)."""
-    r = data - model.response(x)
+    """One damped Gauss–Newton proposal; returns (x_new, chi2_old, predicted decrease).
+
+    The response is read off the Jacobian (its intensity columns are the
+    unit-intensity responses), so a step costs one Jacobian evaluation.
+    """
     jac = model.jacobian(x)  # (T, N, P)
-    a = np.swapaxes(jac, 1, 2) @ jac  # (T, P, P)
-    g = np.einsum("tnp,tn->tp", jac, r)  # descent direction of chi2 / 2
-    p = x.shape[1]
     d1 = model.n_loc + 1
+    inten = x[:, d1 - 1 :: d1]
+    r = data - (jac[:, :, d1 - 1 :: d1] @ inten[:, :, None])[..., 0]
+    a = np.swapaxes(jac, 1, 2) @ jac  # (T, P, P)
+    g = (r[:, None, :] @ jac)[:, 0, :]  # descent direction of chi2 / 2
+    p = x.shape[1]
     is_int = np.zeros(p, bool)
     is_int[d1 - 1 :: d1] = True
     fixed = is_int & (x <= 0.0) & (g <= 0.0)
     diag = np.diagonal(a, axis1=1, axis2=2)
     floor = 1e-9 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
-    scale = np.maximum(diag, floor)
-    a_d = a + (lam[:, None] * scale)[:, :, None] * np.eye(p)
+    eye = np.eye(p)
+    a_d = a + (lam[:, None] * np.maximum(diag, floor))[:, :, None] * eye
     keep = ~fixed
-    a_d = a_d * (keep[:, :, None] & keep[:, None, :]) + fixed[:, :, None] * np.eye(p)
+    a_d = a_d * (keep[:, :, None] & keep[:, None, :]) + fixed[:, :, None] * eye
     g = np.where(fixed, 0.0, g)
     step = np.linalg.solve(a_d, g[..., None])[..., 0]
-    pred = np.einsum("tp,tp->t", step, 2.0 * g) - np.einsum("tp,tpq,tq->t", step, a, step)
+    pred = 2.0 * np.einsum("tp,tp->t", step, g) - np.einsum("tp,tpq,tq->t", step, a, step)
     return project(model, x + step), np.einsum("tn,tn->t", r, r), pred
 
 
@@ -108,14 +114,17 @@ def refine_batch(
     Returns
     -------
     LMOutcome
-        ``converged`` is False only for trials that hit ``max_iter``.
+        ``converged`` is False only for trials that hit ``max_iter``; ``stalled``
+        marks trials that stopped because no damped step decreased chi^2 (a
+        minimum on a kink of the sensitivity law, or working precision).
     """
     x = project(model, x0)
     t = x.shape[0]
     lam = np.full(t, 1e-3)
-    chi2 = _chi2(model, x, data)
-    nev = np.ones(t, dtype=np.int64)
+    chi2 = np.zeros(t)
+    nev = np.zeros(t, dtype=np.int64)
     done = np.zeros(t, bool)
+    stalled = np.zeros(t, bool)
     for _ in range(max_iter):
         act = np.flatnonzero(~done)
         if act.size == 0:
@@ -123,13 +132,17 @@ def refine_batch(
         xa, da = x[act], data[act]
         x_new, chi2_old, pred = _lm_step(model, xa, da, lam[act])
         chi2_new = _chi2(model, x_new, da)
-        nev[act] += 3  # response + Jacobian + trial response
+        nev[act] += 2  # one Jacobian (with the response) + one trial response
         tiny = ftol * chi2_old + 1e-30
         acc = chi2_new < chi2_old
         small = (acc & (chi2_old - chi2_new <= tiny)) | (pred <= tiny)
         x[act] = np.where(acc[:, None], x_new, xa)
         chi2[act] = np.where(acc, chi2_new, chi2_old)
         lam[act] = np.where(acc, np.maximum(lam[act] / 5.0, 1e-12), lam[act] * 8.0)
-        stall = lam[act] > _LAMBDA_MAX
+        stall = (lam[act] > _LAMBDA_MAX) & ~small
+        stalled[act] = stall
         done[act] = small | stall
-    return LMOutcome(x=x, chi2=chi2, converged=done, n_evaluations=nev)
+    else:
+        left = ~done
+        chi2[left] = _chi2(model, x[left], data[left])
+    return LMOutcome(x=x, chi2=chi2, converged=done, n_evaluations=nev, stalled=stalled)

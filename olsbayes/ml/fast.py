@@ -2,22 +2,29 @@
 
 Pipeline for a batch of T data vectors (all stages vectorised over trials):
 
-1. :func:`~olsbayes.ml.search.grid_search` -- matching pursuit then alternating
-   projection on a dictionary of unit-intensity atoms (cost O(T M N K^2) per
-   sweep, M grid points): a global search that is polynomial in K.
-2. :func:`~olsbayes.ml.batch.refine_batch` -- joint bounded Levenberg–Marquardt
-   on all K (d + 1) parameters with the analytic Jacobian.
-3. A few deterministic perturbed restarts: every source location is shifted by
-   a fixed sign pattern of size ``restart_scale`` grid steps, refined again, and
-   the best likelihood per trial kept.  They remove the shallow false minima a
-   source creates when a sub-sensor lies about 90 deg from it (the kink of the
-   clipped cosine).  Being deterministic, a batch fit equals a loop of single fits.
+1. :func:`~olsbayes.ml.search.grid_search` -- candidate atom sets on a grid of
+   unit-intensity atoms: matching pursuit + alternating projection, and for
+   K >= 2 the best K-tuple of each of ``n_coarse`` interleaved coarse subsets
+   (exhaustive, :mod:`~olsbayes.ml.tuples`) + alternating projection.  Cost
+   O(T M N K^2) per sweep plus O(T C(M_c, K) K^2) with C(M_c, K) capped.
+2. :func:`~olsbayes.ml.batch.refine_batch` -- one joint bounded
+   Levenberg–Marquardt run over all candidates of all trials at once (analytic
+   Jacobian); the best likelihood per trial wins.
+3. Deterministic perturbed restarts around that optimum: every source location
+   shifted by fixed sign patterns of ``restart_scale`` grid steps, all refined
+   in one more batched LM run.  They reach the neighbouring basins of the
+   shallow false minima that the kink of the clipped cosine creates (a
+   sub-sensor ~90 deg from a source).  For K = 1 only fits that ended on a kink
+   are restarted.
+
+Being deterministic, a batch fit equals a loop of single fits.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..crlb import kink_sources
 from ..model import Model
 from .batch import LMOutcome, refine_batch
 from .grid import atoms, grid_step
@@ -43,14 +50,44 @@ def restart_patterns(k: int, d: int, n: int) -> np.ndarray:
     return np.array(base[:n]).reshape(n, k, d)
 
 
-def _best(a: LMOutcome, b: LMOutcome) -> LMOutcome:
-    better = b.chi2 < a.chi2 * (1 - 1e-12)
-    return LMOutcome(
-        x=np.where(better[:, None], b.x, a.x),
-        chi2=np.where(better, b.chi2, a.chi2),
-        converged=np.where(better, b.converged, a.converged),
-        n_evaluations=a.n_evaluations + b.n_evaluations,
-    )
+def _take(out: LMOutcome, rows: np.ndarray) -> LMOutcome:
+    return LMOutcome(out.x[rows], out.chi2[rows], out.converged[rows],
+                     out.n_evaluations[rows], out.stalled[rows])
+
+
+def _on_kink(model: Model, x: np.ndarray, atol: float = 1e-6) -> np.ndarray:
+    """Trials (T,) with a source within ~atol rad of a sub-sensor's 90 deg horizon."""
+    if not model.sensitivity.kink:
+        return np.zeros(x.shape[0], bool)
+    return np.any(kink_sources(model, x, atol=atol), axis=-1)
+
+
+def _restart(
+    model: Model, data: np.ndarray, out: LMOutcome, delta: np.ndarray, patterns: np.ndarray,
+    max_iter: int,
+) -> LMOutcome:
+    """Perturbed restarts around the refined optimum (all patterns in one LM run).
+
+    Every trial for K >= 2; for K = 1 only trials that ended on a kink.
+    """
+    k, d = patterns.shape[1:]
+    rows = np.arange(out.x.shape[0])
+    if k == 1:
+        rows = np.flatnonzero(out.stalled | _on_kink(model, out.x))
+    if rows.size == 0:
+        return out
+    base = out.x[rows].reshape(rows.size, 1, k, d + 1)
+    starts = np.repeat(base, patterns.shape[0], axis=1)
+    starts[..., :d] += patterns * delta
+    new = _refine_starts(model, data[rows], starts, max_iter)
+    x, chi2 = out.x.copy(), out.chi2.copy()
+    conv, nev, stalled = out.converged.copy(), out.n_evaluations.copy(), out.stalled.copy()
+    nev[rows] += new.n_evaluations
+    better = new.chi2 < chi2[rows] * (1 - 1e-12)
+    sel = rows[better]
+    x[sel], chi2[sel], conv[sel] = new.x[better], new.chi2[better], new.converged[better]
+    stalled[sel] = new.stalled[better]
+    return LMOutcome(x, chi2, conv, nev, stalled)
 
 
 def fit_fast(
@@ -60,28 +97,30 @@ def fit_fast(
     grid: np.ndarray,
     *,
     n_restarts: int = 4,
-    restart_scale: float = 6.0,
+    restart_scale: float = 3.0,
     n_coarse: int = 3,
     max_iter: int = 100,
 ) -> LMOutcome:
     """Fast ML fits of a batch ``data`` (T, N); returns the raw (T, P) outcome."""
     k, d = n_sources, model.n_loc
-    t = data.shape[0]
     g = atoms(model, grid)
-    idx, inten = grid_search(g, data, k, n_coarse=n_coarse)  # (T, C, K)
-    c = idx.shape[1]
-    x0 = np.concatenate([grid[idx], inten[..., None]], axis=-1).reshape(t * c, -1)
-    cand = refine_batch(model, np.repeat(data, c, axis=0), x0, max_iter=max_iter)
-    chi2 = cand.chi2.reshape(t, c)
-    pick = np.arange(t) * c + np.argmin(chi2, axis=1)
-    out = LMOutcome(
-        x=cand.x[pick], chi2=cand.chi2[pick], converged=cand.converged[pick],
-        n_evaluations=cand.n_evaluations.reshape(t, c).sum(axis=1),
-    )
+    idx, inten, _ = grid_search(g, data, k, n_coarse=n_coarse)  # (T, C, K)
+    starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
+    out = _refine_starts(model, data, starts, max_iter)
     if n_restarts:
         delta = restart_scale * grid_step(model, grid)
-        for pat in restart_patterns(k, d, n_restarts):
-            x = out.x.reshape(t, k, d + 1).copy()
-            x[:, :, :d] += pat * delta
-            out = _best(out, refine_batch(model, data, x.reshape(t, -1), max_iter=max_iter))
+        out = _restart(model, data, out, delta, restart_patterns(k, d, n_restarts), max_iter)
     return out
+
+
+def _refine_starts(
+    model: Model, data: np.ndarray, starts: np.ndarray, max_iter: int
+) -> LMOutcome:
+    """One batched LM run over starts (T, C, K, d+1); the best chi^2 per trial wins."""
+    t, c = starts.shape[:2]
+    cand = refine_batch(model, np.repeat(data, c, axis=0), starts.reshape(t * c, -1),
+                        max_iter=max_iter)
+    pick = np.arange(t) * c + np.argmin(cand.chi2.reshape(t, c), axis=1)
+    out = _take(cand, pick)
+    return LMOutcome(out.x, out.chi2, out.converged,
+                     cand.n_evaluations.reshape(t, c).sum(axis=1), out.stalled)

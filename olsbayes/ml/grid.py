@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import finite_array
+from .._validation import finite_array, positive_float
 from ..errors import InputError
 from ..geometry import lonlat_to_unit, wrap_angle
 from ..model import Model
@@ -46,15 +46,19 @@ def _plate_grid(model: Model, density: float) -> np.ndarray:
     return np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
 
 
-def default_grid(model: Model, density: float = 4.0) -> np.ndarray:
+def default_grid(model: Model, density: float | None = None) -> np.ndarray:
     """Default candidate locations, shape (M, d).
 
-    Ring: ``max(256, density * N)`` equally spaced angles.  Sphere: a Fibonacci
+    ``density`` defaults to 4 (ring, sphere) or 8 (plate).
+    Ring: ``max(128, density * N)`` equally spaced angles.  Sphere: a Fibonacci
     lattice of ``density * N`` directions (clipped to [1024, 8192]) over the whole
     sphere.  Plate: an (x, y, z) grid over the plate's extent padded by half of it,
     xy step ``8 * pitch / density``, 10 geometric z levels from pitch/2 to twice
     the extent (override with ``grid=`` for other source volumes).
     """
+    if density is None:
+        density = 8.0 if model.kind == "position" else 4.0
+    density = positive_float("density", density)
     if model.kind == "angle":
         return _ring_grid(model, density)
     if model.kind == "lonlat":

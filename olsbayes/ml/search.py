@@ -82,13 +82,6 @@ def _alternate(
     return idx
 
 
-def _rss(g: np.ndarray, s: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Least-squares residual sum of squares of the atoms idx (T, K), shape (T,)."""
-    q = _basis(g, idx)
-    c = np.einsum("tn,tnk->tk", s, q)
-    return np.einsum("tn,tn->t", s, s) - np.einsum("tk,tk->t", c, c)
-
-
 def _search_chunk(
     g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int, max_sweeps: int,
     plans: list[TuplePlan],
@@ -100,20 +93,24 @@ def _search_chunk(
     return np.stack(cands, axis=1)
 
 
-def _intensities(g: np.ndarray, s: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Least-squares intensities of the chosen atoms (T, C, K), clipped at 0."""
+def _intensities(
+    g: np.ndarray, s: np.ndarray, idx: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares intensities (T, C, K), clipped at 0, and residual sums of squares."""
     a = g[idx]  # (T, C, K, N)
     ata = a @ np.swapaxes(a, -1, -2)
     tr = np.trace(ata, axis1=-2, axis2=-1)[..., None, None]
     ridge = 1e-10 * tr * np.eye(idx.shape[-1]) + 1e-300
     rhs = np.einsum("tckn,tn->tck", a, s)
-    return np.maximum(np.linalg.solve(ata + ridge, rhs[..., None])[..., 0], 0.0)
+    coef = np.linalg.solve(ata + ridge, rhs[..., None])[..., 0]
+    rss = np.einsum("tn,tn->t", s, s)[:, None] - np.einsum("tck,tck->tc", rhs, coef)
+    return np.maximum(coef, 0.0), rss
 
 
 def grid_search(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
     budget: int = TUPLE_BUDGET,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate K-atom explanations of every data vector.
 
     Parameters
@@ -137,6 +134,8 @@ def grid_search(
         C = 1 + (n_coarse if K >= 2 else 0) candidate atom sets per trial.
     intensity : ndarray, shape (T, C, K)
         Their least-squares intensities, clipped at 0.
+    rss : ndarray, shape (T, C)
+        Their (unconstrained) least-squares residual sums of squares.
     """
     gnorm2 = np.einsum("mn,mn->m", g, g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
@@ -145,4 +144,4 @@ def grid_search(
         for i in range(0, data.shape[0], _CHUNK)
     ]
     idx = np.concatenate(parts, axis=0)
-    return idx, _intensities(g, data, idx)
+    return (idx, *_intensities(g, data, idx))
