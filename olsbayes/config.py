@@ -252,6 +252,8 @@ def _check_nested(where: str, value: Any, depth: int = 0) -> None:
             _check_nested(where, item, depth + 1)
         elif isinstance(item, bool) or not isinstance(item, (int, float)):
             raise ConfigError(f"{where} must hold numbers only; got {_short(item)}")
+        elif isinstance(item, int) and abs(item) > MAX_ABS:
+            raise ConfigError(f"{where} must have magnitudes <= {MAX_ABS:g}; got {_short(item)}")
 
 
 def _check_array(where: str, value: Any, f: Field) -> np.ndarray:

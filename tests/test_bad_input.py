@@ -135,6 +135,15 @@ CONFIG_CASES = [
      "intensities is required"),
     ("bad angle unit", _SENSOR + _SCENE + 'angle_unit = "grad"\n', "angle_unit"),
     ("data seed negative", _SENSOR + _SCENE + "[data]\nsimulate = true\nseed = -1\n", "seed"),
+    ("huge integer in array", _SENSOR + "[scene]\ndirections = [1" + "0" * 400 + "]\n"
+     "intensities = [1]\n", "magnitudes"),
+    ("hostile nesting depth", "[scene]\ndirections = " + "[" * 5000 + "]" * 5000 + "\n",
+     "nested too deeply"),
+    ("inline table as number", '[sensor]\ngeometry = "ring"\nn = 30\nsigma = {a = 1}\n',
+     "number"),
+    ("date as number", '[sensor]\ngeometry = "ring"\nn = 30\nsigma = 1979-05-27\n', "number"),
+    ("array of tables", '[[sensor]]\ngeometry = "ring"\n', "must be a table"),
+    ("NUL in a path", '[data]\nfile = "a\\u0000b"\n', "file path"),
 ]
 
 
@@ -210,6 +219,21 @@ def test_data_file_bad_content(tmp_path, content, match):
         read_readings(p, 30)
 
 
+def test_data_file_binary_and_npy(tmp_path):
+    garbage = tmp_path / "r.txt"
+    garbage.write_bytes(b"\xff\xfe\x00\x01" * 10)
+    with pytest.raises(ob.ConfigError, match="cannot be read"):
+        read_readings(garbage, 30)
+    cube = tmp_path / "r.npy"
+    np.save(cube, np.zeros((2, 2, 30)))
+    with pytest.raises(ob.ConfigError, match="table of numbers"):
+        read_readings(cube, 30)
+    pickled = tmp_path / "p.npy"
+    np.save(pickled, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(ob.ConfigError, match="cannot be read"):
+        read_readings(pickled, 30)
+
+
 def test_config_not_utf8_and_folder(tmp_path):
     from olsbayes.config import load_config
 
@@ -243,6 +267,8 @@ def _cli_cases(tmp_path):
         ["crlb", "--set", "sensor.sigma=-1"],
         ["crlb", "--set", "sensor"],
         ["crlb", "--set", "scene.directions=[[0.1, 0.2]]"],
+        ["crlb", "--set", "scene.directions=" + "[" * 3000 + "]" * 3000],
+        ["crlb", "--set", "a.b.c=1"],
         ["simulate", "--repeats", "0"],
         ["simulate", "--out", str(tmp_path)],
         ["simulate", "--out", str(blocker / "sub" / "r.txt")],
@@ -264,11 +290,11 @@ def test_cli_bad_input_catalogue(tmp_path, capsys):
         assert code == 2, (argv, code, err)
         assert len(lines) == 1, (argv, err)
         assert "error" in lines[0] and "Traceback" not in err, (argv, err)
-    assert len(cases) >= 20
+    assert len(cases) >= 22
 
 
 def test_catalogue_size(tmp_path):
     """The issue asks for >= 40 bad inputs across API and CLI."""
     n = (len(API_CASES) + len(CONFIG_CASES) + len(BUILD_CASES) + len(_cli_cases(tmp_path))
-         + 5 + 2 + 2)  # data-file contents, config encoding/folder, output folders
+         + 5 + 3 + 2 + 2)  # data-file contents, binary/npy, config encoding/folder, outputs
     assert n >= 40

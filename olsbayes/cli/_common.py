@@ -127,6 +127,8 @@ def _parse_override(item: str) -> tuple[str, Any]:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()  # an unquoted string, e.g. --set sensor.geometry=sphere
+    except RecursionError:
+        raise InputError(f"--set {key}: value is nested too deeply") from None
     return key, value
 
 
