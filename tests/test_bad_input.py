@@ -278,6 +278,10 @@ def _cli_cases(tmp_path):
         ["fit", "--data", str(tmp_path / "missing.txt"), "--n-sources", "1"],
         ["fit", "--data", str(short), "--n-sources", "1"],
         ["fit", "--data", str(short)],
+        ["select", "--k-max", "99"],
+        ["select", "--maxcall", "-1"],
+        ["study"],
+        ["study", str(cfg_bad)],
     ]
 
 
@@ -290,7 +294,7 @@ def test_cli_bad_input_catalogue(tmp_path, capsys):
         assert code == 2, (argv, code, err)
         assert len(lines) == 1, (argv, err)
         assert "error" in lines[0] and "Traceback" not in err, (argv, err)
-    assert len(cases) >= 22
+    assert len(cases) >= 26
 
 
 def test_catalogue_size(tmp_path):
