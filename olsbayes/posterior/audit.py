@@ -120,7 +120,7 @@ def _reasons(result: PosteriorResult, table, crlb_sd: np.ndarray) -> list[list[s
     snr = np.full(k, np.inf)
     for s in range(k):
         snr[s] = est[s * w + w - 1] / crlb_sd[s * w + w - 1]
-    kink = kink_sources(result.model, est[: k * w]) if k else np.zeros(0, bool)
+    kink = _near_kink(result, crlb_sd)
     for j, prior in enumerate(result.prior.marginals):
         src = j // w if j < k * w else None
         if not finite[j]:
@@ -135,10 +135,28 @@ def _reasons(result: PosteriorResult, table, crlb_sd: np.ndarray) -> list[list[s
         if src is not None and snr[src] < LOW_SNR:
             out[j].append("low SNR")
         if src is not None and kink[src]:
-            out[j].append("on the kink")
+            out[j].append("near the kink (a sub-sensor within 3 sd of the source's horizon)")
         if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > 1.05:
             out[j].append("poor mixing")
     return out
+
+
+def _near_kink(result: PosteriorResult, crlb_sd: np.ndarray) -> np.ndarray:
+    """Per source: a sub-sensor's horizon (c = 0) within 3 CRLB sd of the direction.
+
+    For distant sources |c| is the sine of the angle to the horizon, compared
+    with the largest location sd (rad); for plates only an exact kink counts.
+    """
+    model, k, w = result.model, result.n_sources, result.prior.n_loc + 1
+    if k == 0 or not model.sensitivity.kink:
+        return np.zeros(k, bool)
+    x = result.estimate[: k * w]
+    if model.kind == "position":
+        return kink_sources(model, x)
+    margin = np.arcsin(np.min(np.abs(model.cosines(x)), axis=-1))  # (K,) rad
+    loc_sd = crlb_sd[: k * w].reshape(k, w)[:, :-1]
+    loc_sd = np.where(np.isfinite(loc_sd), loc_sd, np.inf).max(axis=1)
+    return margin < 3 * loc_sd
 
 
 def crlb_check(result: PosteriorResult, rtol: float = 0.2) -> CRLBCheck:

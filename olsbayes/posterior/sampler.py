@@ -110,11 +110,15 @@ def _seed_emcee(sampler, gen: np.random.Generator) -> None:
 
 
 def _run(sampler, z0, max_steps, check_every, tau_multiple, progress, rhat_check):
-    """Run until n >= tau_multiple * tau (tau stable to 10%) and R-hat holds, or max_steps."""
+    """Run until n >= tau_multiple * tau (tau stable to 10%) and R-hat holds, or max_steps.
+
+    R-hat is costlier than tau, so once the tau criterion holds it is checked at
+    steps growing by 10% at least.
+    """
     import emcee
 
     old = np.inf
-    converged = False
+    next_rhat = 0
     for _ in sampler.sample(emcee.State(z0), iterations=max_steps, progress=progress):
         it = sampler.iteration
         if check_every is None or it % check_every:
@@ -123,14 +127,18 @@ def _run(sampler, z0, max_steps, check_every, tau_multiple, progress, rhat_check
         tmax = float(np.max(tau))
         stable = abs(old - tmax) < 0.1 * tmax
         old = tmax
-        if np.isfinite(tmax) and it >= tau_multiple * tmax and stable and rhat_check(tmax):
-            converged = True
-            break
-    return converged
+        if np.isfinite(tmax) and it >= tau_multiple * tmax and stable and it >= next_rhat:
+            if rhat_check(tmax):
+                return True
+            next_rhat = int(1.1 * it)
+    return False
 
 
 def _rhat_checker(sampler, logpost, prior, rhat_max):
-    """Closure: True when the relabelled post-burn-in draws have max R-hat < rhat_max."""
+    """Closure: True when the post-burn-in draws (as stored) have max R-hat < rhat_max.
+
+    Raw draws are tried first; only if they fail and K > 1 are they relabelled.
+    """
     from ._arviz import rhat_array
 
     def check(tmax: float) -> bool:
@@ -138,19 +146,25 @@ def _rhat_checker(sampler, logpost, prior, rhat_max):
             return True
         chain = sampler.get_chain()
         burn = min(int(np.ceil(5 * tmax)), chain.shape[0] // 2)
-        step = max(1, int(tmax // 4))  # thinned by tau / 4: near the same R-hat, cheaper
-        x = logpost.to_params(chain[burn::step].swapaxes(0, 1))
-        if prior.n_sources > 1:
-            w = prior.n_loc + 1
-            lpost = sampler.get_log_prob()[burn::step].T
-            x, _ = relabel(x, prior.n_sources, prior.periodic[:w], lpost)
-        if prior.periodic.any():
-            centre = circular_mean(x[..., prior.periodic].reshape(-1, int(prior.periodic.sum())),
-                                   axis=0)
-            x[..., prior.periodic] = centre + wrap_angle(x[..., prior.periodic] - centre)
-        return bool(np.max(rhat_array(x)) < rhat_max)
+        x = logpost.to_params(chain[burn:].swapaxes(0, 1))
+        if _rhat_max(x, prior, rhat_array) < rhat_max:
+            return True
+        if prior.n_sources < 2:
+            return False
+        lpost = sampler.get_log_prob()[burn:].T
+        x, _ = relabel(x, prior.n_sources, prior.periodic[: prior.n_loc + 1], lpost)
+        return _rhat_max(x, prior, rhat_array) < rhat_max
 
     return check
+
+
+def _rhat_max(x: np.ndarray, prior: ScenePrior, rhat_array) -> float:
+    if prior.periodic.any():
+        per = prior.periodic
+        centre = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)
+        x = x.copy()
+        x[..., per] = centre + wrap_angle(x[..., per] - centre)
+    return float(np.max(rhat_array(x)))
 
 
 def sample(

@@ -1,0 +1,141 @@
+"""Effective samples per second of the emcee posterior, side by side in one run.
+
+Setting of Fig. 3: a ring of N = 30 sub-sensors, sigma = 0.01, K = 2 sources pi
+apart with intensities 1.0 and 0.2.  For each configuration the script reports
+max R-hat, min bulk ESS over the parameters, sampling time, ESS per second and
+whether the target (R-hat < 1.01 and bulk ESS >= 1000 within 5 s) was met:
+
+* ``vectorised`` -- one log-posterior call per ensemble half-step (default);
+* ``per-walker`` -- emcee calls the log-posterior once per walker;
+* ``stretch`` -- vectorised, emcee's affine-invariant stretch move instead of
+  the default differential-evolution mixture;
+* ``prior-seeded`` -- vectorised, walkers drawn from the prior instead of the
+  CRLB ball around the ML point (capped at ``--prior-steps``; K >= 2 chains
+  from the prior often stay stuck, which is why this is never the default).
+
+The ML fit that seeds the ball is timed separately (it is shared).  Timings on
+a shared machine are noisy; compare the ratios within one run.
+
+Usage::
+
+    python benchmarks/posterior_ess.py               # quick, one data set (~1-2 min)
+    python benchmarks/posterior_ess.py --full        # 5 data sets
+    python benchmarks/posterior_ess.py --out out/posterior_ess
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from olsbayes import ConvergenceWarning, Model, Ring
+from olsbayes.ml import fit_ml
+from olsbayes.posterior import sample
+from olsbayes.priors import default_priors
+
+TRUTH = np.array([0.3, 1.0, 0.3 + np.pi, 0.2])
+
+
+def run_case(name, model, data, prior, start, seed, **kw) -> dict:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        res = sample(model, data, 2, priors=prior, start=start, rng=seed, progress=False, **kw)
+    table = res.summary()
+    rhat = float(table["r_hat"].max())
+    ess = float(table["ess_bulk"].min())
+    return {
+        "config": name, "steps": res.n_steps, "tau_max": float(np.max(res.tau)),
+        "r_hat_max": rhat, "ess_bulk_min": ess, "time_s": res.elapsed,
+        "ess_per_s": ess / res.elapsed, "target_met": rhat < 1.01 and ess >= 1000
+        and res.elapsed <= 5.0, "converged": res.converged and not caught,
+        "max_dev_sd_over_crlb": float(np.max(np.abs(table["sd"] / table["crlb"] - 1.0))),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--full", action="store_true", help="5 data sets instead of 1")
+    parser.add_argument("--out", default="out/posterior_ess", help="output folder")
+    parser.add_argument("--prior-steps", type=int, default=6000,
+                        help="step cap of the prior-seeded run")
+    args = parser.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    model = Model(Ring(30), sigma=0.01)
+    n_sets = 5 if args.full else 1
+    rows = []
+    for rep in range(n_sets):
+        data = model.simulate(TRUTH, rng=1000 + rep)
+        prior = default_priors(model, 2, i_max=2.0)
+        t0 = time.perf_counter()
+        ml = fit_ml(model, data, 2)
+        t_ml = time.perf_counter() - t0
+        centre = np.asarray(ml.params)
+        cases = [
+            ("vectorised", dict(start=centre)),
+            ("per-walker", dict(start=centre, vectorize=False)),
+            ("stretch", dict(start=centre, moves="stretch")),
+            ("prior-seeded", dict(start="prior", max_steps=args.prior_steps)),
+        ]
+        for name, kw in cases:
+            row = run_case(name, model, data, prior, seed=rep, **kw)
+            row.update(data_set=rep, ml_time_s=t_ml)
+            rows.append(row)
+            print(f"set {rep} {name:13s} done: {row['time_s']:.2f} s", flush=True)
+    _report(rows, out)
+
+
+def _report(rows: list[dict], out: Path) -> None:
+    cols = ["data_set", "config", "steps", "tau_max", "r_hat_max", "ess_bulk_min", "time_s",
+            "ess_per_s", "target_met", "converged", "max_dev_sd_over_crlb", "ml_time_s"]
+    lines = [",".join(cols)] + [",".join(_fmt(r[c]) for c in cols) for r in rows]
+    (out / "posterior_ess.csv").write_text("\n".join(lines) + "\n")
+    header = (f"{'set':>3} {'config':13s} {'steps':>6} {'tau':>6} {'R-hat':>7} {'ESS':>7} "
+              f"{'time s':>7} {'ESS/s':>7} {'target':>6} {'|sd/CRLB-1|':>9}")
+    print(header)
+    for r in rows:
+        print(f"{r['data_set']:>3} {r['config']:13s} {r['steps']:>6} {r['tau_max']:>6.1f} "
+              f"{r['r_hat_max']:>7.4f} {r['ess_bulk_min']:>7.0f} {r['time_s']:>7.2f} "
+              f"{r['ess_per_s']:>7.0f} {str(r['target_met']):>6} "
+              f"{r['max_dev_sd_over_crlb']:>9.3f}")
+    base = {r["data_set"]: r["ess_per_s"] for r in rows if r["config"] == "vectorised"}
+    print("ESS/s relative to vectorised ML-seeded (same data set):")
+    for r in rows:
+        print(f"  set {r['data_set']} {r['config']:13s} {r['ess_per_s'] / base[r['data_set']]:.2f}")
+    print(f"ML fit (shared seed point): {np.mean([r['ml_time_s'] for r in rows]):.2f} s")
+    _plot(rows, out / "posterior_ess.png")
+    print(f"wrote {out / 'posterior_ess.csv'} and {out / 'posterior_ess.png'}")
+
+
+def _fmt(v) -> str:
+    return f"{v:.6g}" if isinstance(v, float) else str(v)
+
+
+def _plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    configs = list(dict.fromkeys(r["config"] for r in rows))
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5), layout="constrained")
+    for i, c in enumerate(configs):
+        vals = [r for r in rows if r["config"] == c]
+        axes[0].scatter([i] * len(vals), [r["ess_per_s"] for r in vals], color="k")
+        axes[1].scatter([i] * len(vals), [r["r_hat_max"] for r in vals], color="k")
+    for ax, lab in zip(axes, ("min bulk ESS per second", "max R-hat")):
+        ax.set_xticks(range(len(configs)), configs, rotation=20)
+        ax.set_ylabel(lab)
+    axes[0].set_yscale("log")
+    axes[1].axhline(1.01, color="crimson", ls="--", lw=1)
+    fig.suptitle("emcee posterior, ring N=30, sigma=0.01, K=2 (Fig. 3 setting)")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
