@@ -139,5 +139,7 @@ def test_bad_input(ring_case):
                progress=False)
     with pytest.raises(InputError, match="start ensemble"):
         sample(model, data, 2, start=np.tile(truth, (5, 1)), progress=False)
+    with pytest.raises(InputError, match="linearly independent"):
+        sample(model, data, 2, start=np.tile(truth, (32, 1)), progress=False)
     with pytest.raises(InputError, match="data"):
         sample(model, data[:10], 2, start=truth, progress=False)

@@ -271,6 +271,13 @@ def sample(
     z0 = logpost.to_sampler(walkers)
     if not np.all(np.isfinite(logpost(z0))):
         raise InputError("start: some walkers have zero posterior density (outside the prior?)")
+    from emcee.ensemble import walkers_independent
+
+    if not walkers_independent(z0):
+        raise InputError(
+            "start: the walkers are not linearly independent (e.g. repeated rows or a "
+            "parameter with one value); spread them out or give a single start point"
+        )
     fn = logpost if vectorize else (lambda z: float(logpost(z)))
     sampler = emcee.EnsembleSampler(n_walkers, p, fn, vectorize=vectorize,
                                     moves=_moves(moves))
