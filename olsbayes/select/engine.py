@@ -18,7 +18,8 @@ from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
 from .nested import nested_log_evidence
 
-__all__ = ["KWork", "noise_work", "laplace_work", "nested_work", "information_criterion"]
+__all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "nested_work",
+           "information_criterion", "scalar_log_likelihood"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,6 +46,15 @@ def noise_work(model: Model, data: np.ndarray) -> KWork:
     log_z = float(noise_log_evidence(data, model.sigma))
     return KWork(0, log_z, 0.0, "closed-form", log_z, np.zeros(0), laplace=log_z,
                  seconds=time.perf_counter() - t0)
+
+
+def ridge_work(model: Model, work: KWork, prior) -> KWork:
+    """Replace an undefined (singular-Fisher) Laplace value by the prior-ridge fallback."""
+    log_z, _, _ = model_laplace(model, work.params, work.log_likelihood, prior, ridge=True)
+    why = ("Laplace with the prior's precision added on a singular Fisher matrix "
+           "(rough: unidentifiable directions span the whole prior)")
+    return dataclasses.replace(work, value=float(log_z), laplace=float(log_z),
+                               method="laplace", reasons=work.reasons + (why,))
 
 
 def laplace_work(model: Model, k: int, fitted: tuple, prior,

@@ -23,7 +23,14 @@ import numpy as np
 from .._validation import as_rng, integer, nonnegative_float, positive_float
 from ..errors import EvidenceWarning, InputError
 from ..model import Model
-from .engine import KWork, information_criterion, laplace_work, nested_work, noise_work
+from .engine import (
+    KWork,
+    information_criterion,
+    laplace_work,
+    nested_work,
+    noise_work,
+    ridge_work,
+)
 from .fits import fit_all
 from .result import KEvidence, SelectionResult
 
@@ -202,7 +209,10 @@ def select_k(
         ``auto`` does not escalate a K above the most probable one whose ML
         log-likelihood exceeds that K's by less than this (nats): on K = 1 truths
         (ring N = 30) the gain of a second source is below 3 nats in 95 % of
-        noise draws.
+        noise draws.  A K whose Fisher matrix is singular at its ML point gets the
+        prior-ridge Laplace fallback only if it gains at least this much over
+        every smaller K (the data need more sources but cannot place them);
+        otherwise it gets no evidence estimate (p = 0, noted).
     dlogz : float
         dynesty's stopping tolerance on the remaining evidence (nats).
     thresholds : mapping, optional
@@ -228,11 +238,11 @@ def select_k(
     decisive = positive_float("decisive", decisive)
     tie = nonnegative_float("tie", tie)
     max_escalations = integer("max_escalations", max_escalations, low=0)
+    min_gain = nonnegative_float("min_gain", min_gain)
     maxcall = integer("maxcall", maxcall, low=1000)
     streams = as_rng(rng).spawn(k_max + 1)
     prior_of = _prior_factory(model, data, priors, i_max)
     log_pk = _count_prior(k_prior, k_max)
-    min_gain = nonnegative_float("min_gain", min_gain)
     nested_opts = {"maxcall": maxcall, "nlive": nlive, "dlogz": positive_float("dlogz", dlogz)}
 
     pairs = [s.spawn(2) for s in streams]  # (fit, nested) streams per K
@@ -245,6 +255,10 @@ def select_k(
             works.append(information_criterion(model, k, fitted[k], method, t_fit))
             continue
         w = laplace_work(model, k, fitted[k], prior_of(k), thresholds, t_fit)
+        gain = w.log_likelihood - max(v.log_likelihood for v in works)
+        if not np.isfinite(w.value) and gain >= min_gain:
+            # the data need more than K-1 sources but K is not identifiable
+            w = ridge_work(model, w, prior_of(k))
         if method == "nested":
             w = nested_work(model, data, w, prior_of(k), pairs[k][1], **nested_opts)
         works.append(w)

@@ -1,0 +1,205 @@
+"""When are two sources seen as two?  K selection near the resolution limit (Eq. 4).
+
+Two equal sources (I = 1) on a ring of N = 30 sub-sensors at a uniformly random
+rotation, separated by dtheta from a quarter of a sensor spacing h = 2 pi / N up
+to pi / 2, noise sigma in {1e-2, 1e-4}.  For every trial the number of sources is
+chosen by :func:`olsbayes.select_k` (Laplace evidence, K = 0, 1, 2, uniform
+intensity prior U(0, 2), ties broken towards the smaller K) and the K = 2 ML fit
+is kept.  Per separation:
+
+* P(K = 2 selected) and the median Bayes factor log Z2 - log Z1 (nats; an
+  undefined Laplace value -- singular Fisher matrix -- counts as -inf);
+* the RMS angle error of the K = 2 ML fit next to Eq. 4 (theta_sd =
+  2 sigma / (I sqrt(N dtheta / pi)), "random guessing" for N dtheta / pi <= 1,
+  i.e. below HALF a spacing) and the exact CRLB at the true scene (median over
+  the trials' placements; the fraction of placements with a singular Fisher
+  matrix is printed);
+* the separation at 50 % detection, in units of h (linear interpolation).
+
+Also the false-alarm rate: K = 1 truths (I = 1), how often K = 2 is chosen
+(goal <= 5 %).
+
+Outputs in --out (default out/resolution_limit/): resolution_limit.png,
+resolution_limit.csv, resolution_limit.txt.
+
+Usage::
+
+    python analyses/resolution_limit.py            # quick: 30 trials per point
+    python analyses/resolution_limit.py --full     # 100 trials per point, 500 K=1 truths
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from olsbayes import Model, Ring, crlb_eq4
+from olsbayes.crlb import bound_covariance
+from olsbayes.errors import OlsBayesWarning
+from olsbayes.select import select_k
+
+N = 30
+H = 2 * np.pi / N
+SIGMAS = (1e-2, 1e-4)
+SEPS_H = np.array([0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.5])
+I_MAX = 2.0
+
+
+def _angle_rms(est: np.ndarray, truth: np.ndarray) -> float:
+    """RMS angle error of canonical K = 2 estimates against the truth (best pairing)."""
+    e = est.reshape(2, 2)[:, 0]
+    t = truth.reshape(2, 2)[:, 0]
+    d1 = np.angle(np.exp(1j * (e - t)))
+    d2 = np.angle(np.exp(1j * (e - t[::-1])))
+    return float(min(np.sqrt(np.mean(d1**2)), np.sqrt(np.mean(d2**2))))
+
+
+def _crlb_theta(model: Model, x: np.ndarray) -> float:
+    cov, _, singular = bound_covariance(model.fisher(x))
+    return np.inf if singular.any() else float(np.sqrt(np.mean(np.diag(cov)[[0, 2]])))
+
+
+def run_point(model: Model, sep: float, trials: int, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    det, lbf, err, bound = [], [], [], []
+    for t in range(trials):
+        th = rng.uniform(-np.pi, np.pi)
+        x = model.canonical(np.array([th, 1.0, th + sep, 1.0]))
+        d = model.simulate(x, rng)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OlsBayesWarning)
+            res = select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX)
+        det.append(res.best == 2)
+        z1, z2 = res[1].log_evidence, res[2].log_evidence
+        lbf.append(z2 - z1 if np.isfinite(z2) else -np.inf)
+        err.append(_angle_rms(res[2].params, x))
+        bound.append(_crlb_theta(model, x))
+    bound = np.array(bound)
+    return {
+        "p_detect": float(np.mean(det)),
+        "median_log_bf": float(np.median(lbf)),
+        "rms_error": float(np.sqrt(np.mean(np.square(err)))),
+        "crlb": float(np.median(bound)),
+        "singular": float(np.mean(~np.isfinite(bound))),
+        "eq4": float(crlb_eq4(N, model.sigma, 1.0, sep)[0]),
+    }
+
+
+def false_alarms(model: Model, trials: int, seed: int) -> float:
+    rng = np.random.default_rng(seed)
+    hits = 0
+    for _ in range(trials):
+        x = np.array([rng.uniform(-np.pi, np.pi), 1.0])
+        d = model.simulate(x, rng)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OlsBayesWarning)
+            hits += select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX).best == 2
+    return hits / trials
+
+
+def crossing(x: np.ndarray, p: np.ndarray, level: float = 0.5) -> float:
+    """First x where p rises through ``level`` (linear interpolation), NaN if never."""
+    for i in range(1, len(x)):
+        if p[i - 1] < level <= p[i]:
+            return float(x[i - 1] + (level - p[i - 1]) * (x[i] - x[i - 1]) / (p[i] - p[i - 1]))
+    return float(x[0]) if p[0] >= level else float("nan")
+
+
+def plot(results: dict, fig=None):
+    import matplotlib.pyplot as plt
+
+    fig = fig or plt.figure(figsize=(15, 4.6))
+    ax1, ax2, ax3 = fig.subplots(1, 3)
+    for sigma, rows in results.items():
+        p = np.array([r["p_detect"] for r in rows])
+        ax1.plot(SEPS_H, p, "o-", label=f"sigma = {sigma:g}")
+        lbf = np.array([r["median_log_bf"] for r in rows])
+        ax2.plot(SEPS_H, np.where(np.isfinite(lbf), lbf, np.nan), "o-", label=f"sigma = {sigma:g}")
+        c = ax3.plot(SEPS_H, [r["rms_error"] for r in rows], "o", label=f"ML RMS, sigma={sigma:g}")
+        col = c[0].get_color()
+        ax3.plot(SEPS_H, [r["crlb"] for r in rows], "-", color=col, label="exact CRLB (median)")
+        ax3.plot(SEPS_H, [r["eq4"] for r in rows], "--", color=col, label="Eq. 4")
+    for ax in (ax1, ax2, ax3):
+        ax.axvline(0.5, color="0.5", ls=":", lw=1)
+        ax.axvline(1.0, color="0.3", ls=":", lw=1)
+        ax.axvline(2.0, color="0.1", ls=":", lw=1)
+        ax.set_xscale("log")
+        ax.set_xlabel("separation / sensor spacing (2 pi / N)")
+    ax1.axhline(0.5, color="0.6", lw=0.8)
+    ax1.set_ylabel("P(K = 2 selected)")
+    ax1.set_title("detection of the second source\n(dotted: Eq. 4 threshold h/2, h, 2h)")
+    ax2.set_yscale("symlog", linthresh=10)
+    ax2.axhline(0, color="0.6", lw=0.8)
+    ax2.set_ylabel("median log Bayes factor Z2 : Z1 (nats)")
+    ax2.set_title("evidence for two sources")
+    ax3.set_yscale("log")
+    ax3.set_ylabel("angle error std (rad)")
+    ax3.set_title("K = 2 ML fit vs Eq. 4 and the exact CRLB")
+    ax1.legend(fontsize=8)
+    ax3.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return fig
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--full", action="store_true", help="100 trials per point, 500 K=1 truths")
+    ap.add_argument("--trials", type=int, default=None, help="trials per point")
+    ap.add_argument("--seed", type=int, default=20260123)
+    ap.add_argument("--out", type=Path, default=Path("out/resolution_limit"))
+    args = ap.parse_args(argv)
+    trials = args.trials or (100 if args.full else 30)
+    n_fa = 500 if args.full else 200
+    args.out.mkdir(parents=True, exist_ok=True)
+    seeds = np.random.SeedSequence(args.seed).spawn(len(SIGMAS) * (len(SEPS_H) + 1))
+    results, fa = {}, {}
+    t0 = time.perf_counter()
+    lines = [f"ring N={N}, two sources I=1, Laplace selection K<=2, i_max={I_MAX}, "
+             f"{trials} trials per point"]
+    for i, sigma in enumerate(SIGMAS):
+        model = Model(Ring(N), sigma)
+        rows = []
+        for j, s in enumerate(SEPS_H):
+            rows.append(run_point(model, s * H, trials, seeds[i * (len(SEPS_H) + 1) + j]))
+            print(f"sigma={sigma:g} sep={s:g}h {rows[-1]} ({time.perf_counter() - t0:.0f} s)",
+                  flush=True)
+        results[sigma] = rows
+        fa[sigma] = false_alarms(model, n_fa, seeds[i * (len(SEPS_H) + 1) + len(SEPS_H)])
+    header = ("sigma", "sep_h", "sep_rad", "p_detect", "median_log_bf", "rms_error", "crlb",
+              "singular", "eq4")
+    with open(args.out / "resolution_limit.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for sigma, rows in results.items():
+            for s, r in zip(SEPS_H, rows):
+                w.writerow([sigma, s, s * H] + [r[k] for k in header[3:]])
+    lines.append(f"{'sigma':>7} {'sep/h':>6} {'P(K=2)':>7} {'med lnB21':>10} {'RMS err':>10} "
+                 f"{'CRLB':>10} {'singular':>8} {'Eq.4':>10}")
+    for sigma, rows in results.items():
+        for s, r in zip(SEPS_H, rows):
+            lines.append(f"{sigma:7.0e} {s:6.2f} {r['p_detect']:7.2f} {r['median_log_bf']:10.1f} "
+                         f"{r['rms_error']:10.3g} {r['crlb']:10.3g} {r['singular']:8.2f} "
+                         f"{r['eq4']:10.3g}")
+    for sigma, rows in results.items():
+        x50 = crossing(SEPS_H, np.array([r["p_detect"] for r in rows]))
+        lines.append(f"sigma={sigma:g}: 50% detection at {x50:.2f} sensor spacings "
+                     f"({x50 * H:.4f} rad); Eq. 4 threshold N dtheta/pi = 1 is 0.50 spacings")
+    for sigma, rate in fa.items():
+        lines.append(f"sigma={sigma:g}: false alarms (K=2 chosen on {n_fa} K=1 truths): "
+                     f"{100 * rate:.1f} % (goal <= 5 %)")
+    lines.append(f"total time {time.perf_counter() - t0:.0f} s")
+    text = "\n".join(lines)
+    print(text)
+    (args.out / "resolution_limit.txt").write_text(text + "\n")
+    fig = plot(results)
+    fig.savefig(args.out / "resolution_limit.png", dpi=120)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
