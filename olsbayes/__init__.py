@@ -23,6 +23,9 @@ from .errors import (
 from .geometry import Plate, Ring, SensorArray, Sphere, wrap_angle
 from .ml import MLResult, fit_ml
 from .model import Model
+from .posterior import PosteriorResult, write_report
+from .posterior import sample as sample_posterior
+from .priors import ScenePrior, default_priors
 from .scene import Scene
 from .select import SelectionResult, select_k
 from .sensitivity import Cosine, CosinePower, CustomSensitivity, Sensitivity, get_sensitivity
@@ -56,6 +59,12 @@ __all__ = [
     # maximum likelihood
     "fit_ml",
     "MLResult",
+    # priors and posteriors
+    "ScenePrior",
+    "default_priors",
+    "sample_posterior",
+    "PosteriorResult",
+    "write_report",
     # studies
     "run_study",
     # number of sources
