@@ -9,7 +9,9 @@ and reports sensor-source terms per second (W * K * N / time) next to the rate
 of a plain numpy multiply-add (``np.multiply(a, b, out=c); c += d``) over arrays
 of the same W * K * N elements, measured in the same run.  The ratio is the
 figure of merit (aim: >= 0.5): 1.0 means one Eq. 1 term costs one fused
-multiply-add pass of numpy.
+multiply-add pass of numpy.  "trig share" is the fraction of the response time
+spent turning source angles into unit vectors (2-3 cos/sin per source, ~20x the
+cost of a multiply-add each): with few sub-sensors (ring N = 30) it caps the ratio.
 
 Usage::
 
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     min_time, repeats = (0.5, 7) if args.full else (0.2, 5)
     header = (f"{'case':32s} {'terms':>9s} {'resp Mt/s':>10s} {'logL Mt/s':>10s} "
-              f"{'muladd M/s':>11s} {'resp ratio':>10s} {'logL ratio':>10s}")
+              f"{'muladd M/s':>11s} {'resp ratio':>10s} {'logL ratio':>10s} {'trig share':>10s}")
     lines = [header, "-" * len(header)]
     print(header + "\n" + lines[1], flush=True)
     for name, model, k, w in cases(args.full):
@@ -107,8 +109,12 @@ def main(argv: list[str] | None = None) -> int:
         t_logl = best_time(lambda: model.log_likelihood(x, data), min_time, repeats)
         fma = muladd_rate(terms, min_time, repeats, rng)
         r_resp, r_logl = terms / t_resp, terms / t_logl
+        share = "-"
+        if model.kind != "position":  # cos/sin once per source: the part no kernel avoids
+            loc = x.reshape(w, k, -1)[..., :-1]
+            share = f"{best_time(lambda: model._units(loc), min_time, repeats) / t_resp:.2f}"
         line = (f"{name:32s} {terms:9d} {r_resp / 1e6:10.1f} {r_logl / 1e6:10.1f} "
-                f"{fma / 1e6:11.1f} {r_resp / fma:10.2f} {r_logl / fma:10.2f}")
+                f"{fma / 1e6:11.1f} {r_resp / fma:10.2f} {r_logl / fma:10.2f} {share:>10s}")
         lines.append(line)
         print(line, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
