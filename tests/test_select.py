@@ -160,3 +160,15 @@ def test_bad_model_and_data():
         select_k(MODEL, np.zeros((2, 30)))
     with pytest.raises(InputError, match="finite"):
         select_k(MODEL, np.full(30, np.nan))
+
+
+def test_loo_cross_check_prefers_the_true_k_over_too_few_sources():
+    from olsbayes.select import loo_compare
+
+    data = _data(2, 0)
+    res = select_k(MODEL, data, k_max=3, method="laplace", rng=0, i_max=2.0)
+    out = loo_compare(MODEL, data, res, n_draws=400, rng=1)
+    assert out.ks.tolist() == [0, 1, 2, 3]
+    assert out.elpd[2] > out.elpd[1] + 100  # one source cannot explain two
+    assert out.best in (2, 3)  # LOO does not penalise a noise-fitting extra source much
+    assert np.isfinite(out.se[2]) and out.pareto_k[2] < 0.7

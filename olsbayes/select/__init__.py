@@ -7,6 +7,7 @@ K! factor of exchangeable sources), dynesty nested sampling
 (:func:`nested_log_evidence`) and the information criteria BIC/AIC.
 """
 
+from .criteria import LOOResult, aic, bic, loo_compare
 from .diagnostics import THRESHOLDS, laplace_trust, min_separation, sensor_spacing
 from .laplace import (
     laplace_log_evidence,
@@ -33,4 +34,8 @@ __all__ = [
     "sensor_spacing",
     "min_separation",
     "THRESHOLDS",
+    "bic",
+    "aic",
+    "loo_compare",
+    "LOOResult",
 ]

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import EvidenceWarning
 from ..model import Model
+from .criteria import aic, bic
 from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
 from .nested import nested_log_evidence
@@ -134,7 +135,7 @@ def information_criterion(model: Model, k: int, fitted: tuple, method: str,
     """Pseudo-evidence -BIC/2 = log L - (P/2) log N, or -AIC/2 = log L - P."""
     fit, params, ll, _ = fitted
     p = params.size
-    penalty = 0.5 * p * math.log(model.n_sensors) if method == "bic" else float(p)
+    crit = bic(ll, p, model.n_sensors) if method == "bic" else aic(ll, p)
     n_calls = int(np.sum(getattr(fit, "n_evaluations", 0)))
-    return KWork(k, ll - penalty, math.nan, method, ll, params, n_calls=n_calls,
+    return KWork(k, -0.5 * crit, math.nan, method, ll, params, n_calls=n_calls,
                  seconds=seconds, fit=fit)
