@@ -34,7 +34,7 @@ from olsbayes.studies.estimators import ring_estimate  # noqa: E402
 SIGMAS = [1e-3, 1e-2, 1e-1]
 KS = [1, 2, 3]
 QUICK = {"fast": 40, "fast_batched": 40, "multistart_2": 6, "multistart_5": 4,
-         "multistart_20": 2, "posterior_200": 3, "posterior_1000": 2, "nested": 2}
+         "multistart_20": 2, "posterior_200": 3, "posterior_1000": 2, "nested": 1}
 FULL = {"fast": 400, "fast_batched": 400, "multistart_2": 100, "multistart_5": 60,
         "multistart_20": 30, "posterior_200": 40, "posterior_1000": 30, "posterior_5000": 20,
         "nested": 20}
@@ -61,11 +61,13 @@ def plot(summary, path) -> None:
 
     methods = list(summary.method.values)
     markers = {1: "o", 2: "s", 3: "^"}
-    fig, axes = plt.subplots(1, len(SIGMAS), figsize=(5 * len(SIGMAS), 4.6), sharey=True)
+    fig, axes = plt.subplots(1, len(SIGMAS), figsize=(5 * len(SIGMAS), 4.6), sharey=True,
+                             squeeze=False)
+    axes = axes[0]
     for ax, sig in zip(axes, SIGMAS):
         for i, meth in enumerate(methods):
             for k in KS:
-                c = summary.sel(method=meth, sigma=sig, n_sources=k)
+                c = summary.sel({"method": meth, "sigma": sig, "n_sources": k})
                 ax.errorbar(float(c.seconds), float(c.rmse_ratio), yerr=float(c.rmse_ratio_se),
                             fmt=markers[k], color=f"C{i}", ms=6, capsize=2,
                             label=meth if (k == 1) else None)
@@ -96,14 +98,14 @@ def main() -> None:
                    seed_offset=j, chunk_size=n if method == "fast_batched" else None)
         s = summarise(ds, method)
         parts.append(xr.Dataset(s).expand_dims(method=[method]))
-    summary = xr.concat(parts, "method")
+    summary = xr.concat(parts, "method", data_vars="all")
     summary.attrs.update({"n_sensors": fixed["n_sensors"], "seed": args.seed,
                           "nested_maxcall": fixed["maxcall"]})
     rows = []
     for meth in summary.method.values:
         for sig in SIGMAS:
             for k in KS:
-                c = summary.sel(method=meth, sigma=sig, n_sources=k)
+                c = summary.sel({"method": meth, "sigma": sig, "n_sources": k})
                 rows.append([str(meth), sig, k, int(c.n), float(c.rmse_ratio),
                              float(c.rmse_ratio_se), float(c.seconds), float(c.fail),
                              float(c.converged)])

@@ -72,7 +72,7 @@ def plot(maps, kink, path) -> None:
     fig, axes = plt.subplots(1, len(methods) + 1, figsize=(4.3 * (len(methods) + 1), 4.2))
     snr = 1 / np.array(SIGMAS)
     for ax, meth in zip(axes, methods):
-        m = maps.sel(method=meth)
+        m = maps.sel({"method": meth})
         im = ax.pcolormesh(np.arange(len(SEPS) + 1), np.arange(len(SIGMAS) + 1),
                            m.fail_any.transpose("sigma", "separation").values, vmin=0, vmax=1,
                            cmap="magma_r")
@@ -88,6 +88,7 @@ def plot(maps, kink, path) -> None:
         ax.set_yticks(np.arange(len(SIGMAS)) + 0.5, [f"{s:.0f}" for s in snr])
         ax.set_xlabel("separation (sensor spacings 2 pi / N)")
         ax.set_title(f"{meth}: failure rate", fontsize=10)
+        ax.invert_yaxis()  # high SNR on top
     axes[0].set_ylabel("SNR = I / sigma")
     axes[0].legend(fontsize=7, loc="lower right")
     fig.colorbar(im, ax=axes[len(methods) - 1], fraction=0.05)
@@ -95,12 +96,14 @@ def plot(maps, kink, path) -> None:
     width = 0.8 / (2 * len(methods))
     for i, meth in enumerate(methods):
         for j, kk in enumerate((False, True)):
-            y = kink.sel(method=meth, kink=kk).fail_any.values
-            ax.bar(np.arange(len(kink.sigma)) + (2 * i + j) * width, y, width,
-                   color=f"C{i}", alpha=1.0 if kk else 0.45,
+            y = kink.sel({"method": meth, "kink": kk}).fail_any.values
+            xs = np.arange(len(kink.sigma)) + (2 * i + j) * width
+            ax.bar(xs, y, width, color=f"C{i}", alpha=1.0 if kk else 0.45,
                    label=f"{meth}{' on kink' if kk else ''}")
+            ax.plot(xs, y, "_", color=f"C{i}", ms=8)  # zero rates stay visible
     ax.set_xticks(np.arange(len(kink.sigma)) + 0.4, [f"SNR {1 / s:g}" for s in kink.sigma.values])
     ax.set_ylabel("failure rate")
+    ax.set_ylim(-0.02, 1.02)
     ax.set_title("source on the costn kink (solid) vs not (pale)", fontsize=10)
     ax.legend(fontsize=7)
     fig.suptitle(f"Stability on a ring of N = {N} (hatched: Fisher matrix singular "
@@ -129,12 +132,12 @@ def main() -> None:
         kinks.append(rates(dk))
         assert bool(dk["on_kink"].sel(kink=True).all()) and not bool(
             dk["on_kink"].sel(kink=False).any())
-    maps = xr.concat(maps, "method")
-    kink = xr.concat(kinks, "method")
+    maps = xr.concat(maps, "method", data_vars="all")
+    kink = xr.concat(kinks, "method", data_vars="all")
     rows = []
     for meth in maps.method.values:
         for sig in SIGMAS:
-            r = maps.sel(method=meth, sigma=sig)
+            r = maps.sel({"method": meth, "sigma": sig})
             rows.append([str(meth), f"{1 / sig:g}"] + [f"{v:.2f}" + ("*" if u else "")
                         for v, u in zip(r.fail_any.values, r.unresolvable.values)])
     text = ("failure rate (any cause) vs separation in sensor spacings; * = Fisher singular\n"
@@ -143,16 +146,20 @@ def main() -> None:
     for meth in kink.method.values:
         for sig in kink.sigma.values:
             for kk in (False, True):
-                r = kink.sel(method=meth, sigma=sig, kink=kk)
+                r = kink.sel({"method": meth, "sigma": sig, "kink": kk})
                 rows.append([str(meth), f"{1 / sig:g}", str(kk), float(r.fail_error),
                              float(r.fail_convergence), float(r.fail_k), float(r.fail_any),
                              int(r.n)])
     text += "\n\nsource on the costn kink (separation 4 spacings)\n" + table(
         ["method", "SNR", "kink", "error", "non-conv", "wrong K", "any", "n"], rows)
     print(text)
-    xr.Dataset({"map_" + k: v for k, v in maps.items()} | {"kink_" + k: v.rename(
-        sigma="kink_sigma") for k, v in kink.items()}).to_netcdf(
-        args.out / "stability.nc", engine="h5netcdf")
+    both = xr.merge([
+        maps.rename_vars({k: "map_" + k for k in maps.data_vars}),
+        kink.rename({"sigma": "kink_sigma"}).rename_vars({k: "kink_" + k for k in kink.data_vars}),
+    ])
+    both.attrs.update({"n_sensors": N, "separation_unit": "sensor spacings 2 pi / N",
+                       "seed": args.seed})
+    both.to_netcdf(args.out / "stability.nc", engine="h5netcdf")
     (args.out / "stability.txt").write_text(text + "\n")
     plot(maps, kink, args.out / "stability.png")
 
