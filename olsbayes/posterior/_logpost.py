@@ -64,6 +64,9 @@ class LogPosterior:
         self.use_likelihood = use_likelihood
         self.n_model = model.n_params(prior.n_sources)
         self.n_calls = 0
+        # support in sampler coordinates: the window (-pi, pi] for periodic ones
+        self._lo = np.where(self.periodic, np.nextafter(-np.pi, 0.0), prior.lower)
+        self._hi = np.where(self.periodic, np.pi, prior.upper)
 
     def to_params(self, z: np.ndarray) -> np.ndarray:
         """Model parameters (angles wrapped to (-pi, pi]) of sampler coordinates."""
@@ -98,11 +101,9 @@ class LogPosterior:
     def split(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(log prior, log likelihood) at sampler coordinates, each (...,)."""
         z = np.asarray(z, dtype=float)
-        in_window = np.all(
-            (z[..., self.periodic] > -np.pi) & (z[..., self.periodic] <= np.pi), axis=-1
-        )
+        inside = np.all((z >= self._lo) & (z <= self._hi), axis=-1)
         x = z + self.shift  # angles need no wrapping: the kernel and the prior are periodic
-        lp = np.where(in_window, self.prior.log_prob(x), -np.inf)
+        lp = np.where(inside, self.prior.log_prob_inside(x), -np.inf)
         if not self.use_likelihood:
             return lp, np.zeros_like(lp)
         ll = np.full(lp.shape, -np.inf)

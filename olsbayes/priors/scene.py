@@ -189,9 +189,21 @@ class ScenePrior:
         """
         x = self._check("x", x)
         fast = self._fast
-        total = np.full(x.shape[:-1], fast["const"])
         cols = x[..., fast["bounded"]]
         inside = np.all((cols >= fast["lo"]) & (cols <= fast["hi"]), axis=-1)
+        total = self.log_prob_inside(x)
+        out = np.where(inside & ~np.isnan(total), total, -np.inf)
+        return out if out.ndim else float(out)
+
+    def log_prob_inside(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`log_prob` without the support test: for x known to be inside.
+
+        Samplers that test the support themselves (in their own coordinates)
+        call this to save a pass over the array; outside the support the value
+        is meaningless.
+        """
+        fast = self._fast
+        total = np.full(np.shape(x)[:-1], fast["const"])
         for prior, idx in fast["curved"]:
             xi = x[..., idx]
             if prior.periodic:
@@ -199,8 +211,7 @@ class ScenePrior:
             xi = np.clip(xi, prior.lower, prior.upper)
             with np.errstate(divide="ignore", invalid="ignore"):
                 total = total + np.sum(prior._log_pdf(xi), axis=-1)
-        out = np.where(inside & ~np.isnan(total), total, -np.inf)
-        return out if out.ndim else float(out)
+        return total
 
     @property
     def _fast(self) -> dict:
