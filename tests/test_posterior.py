@@ -123,6 +123,22 @@ def test_relabel_recovers_permuted_draws():
                        np.sort(wrap_angle(base[[0, 2, 4]])), atol=0.1)
 
 
+def test_relabel_on_the_sphere():
+    """Sources at the same longitude (lon order is useless) and one across the dateline."""
+    rng = np.random.default_rng(1)
+    base = np.array([np.pi - 0.01, 0.6, 1.0, np.pi - 0.01, -0.6, 0.5, 0.5, 0.0, 0.8])
+    draws = base + 0.02 * rng.standard_normal((3000, 9))
+    perms = np.array([rng.permutation(3) for _ in range(3000)])
+    mixed = np.take_along_axis(draws.reshape(-1, 3, 3), perms[:, :, None], axis=1)
+    fixed, _ = relabel(mixed.reshape(-1, 9), 3, np.array([True, False, False]))
+    from olsbayes.geometry import wrap_angle
+
+    fb = fixed.reshape(-1, 3, 3)
+    for s in range(3):
+        assert np.abs(wrap_angle(fb[:, s, 0] - fb[0, s, 0])).max() < 0.3
+        assert np.abs(fb[:, s, 1] - fb[0, s, 1]).max() < 0.3  # never jumps lat +-0.6
+
+
 def test_bad_input(ring_case):
     model, truth, data = ring_case
     with pytest.raises(InputError, match="n_walkers"):

@@ -51,7 +51,7 @@ def test_netcdf_round_trip(small_result, tmp_path):
     path = res.to_netcdf(tmp_path / "p.nc")
     back = from_netcdf(path)
     for group in ("posterior", "sample_stats", "log_likelihood", "observed_data",
-                  "constant_data"):
+                  "constant_data", "prior"):
         assert group in back.groups()
     np.testing.assert_array_equal(back.posterior["theta"].values[..., 0], res.samples[..., 0])
     assert back.log_likelihood["obs"].shape[-1] == 16

@@ -83,6 +83,7 @@ def to_inference_data(
     data: np.ndarray,
     constants: dict[str, np.ndarray],
     attrs: dict[str, object],
+    prior_draws: np.ndarray | None = None,
 ):
     """Assemble an ``arviz.InferenceData``.
 
@@ -102,6 +103,9 @@ def to_inference_data(
         ``constant_data`` arrays; ``normals`` (N, D) gets dims (sensor, axis).
     attrs : dict
         Written into every group's attributes (strings and numbers only).
+    prior_draws : ndarray (1, draw, P), optional
+        Independent draws from the prior (raw, exchangeable labels): the
+        ``prior`` group.
     """
     az = import_arviz()
     post = _by_variable(draws, names)
@@ -117,6 +121,7 @@ def to_inference_data(
         log_likelihood={"obs": pointwise},
         observed_data={"obs": data},
         constant_data=constants,
+        prior=None if prior_draws is None else _by_variable(prior_draws, names),
         coords=coords,
         dims=dims,
         attrs=attrs,

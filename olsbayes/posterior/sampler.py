@@ -22,6 +22,8 @@ __all__ = ["sample"]
 
 #: Draws kept per walker at most (further thinning beyond this), bounds memory.
 MAX_STORED_DRAWS = 5000
+#: Independent prior draws stored in the InferenceData ``prior`` group.
+PRIOR_DRAWS = 2000
 
 
 def _check_prior(model: Model, k: int, priors: object, data: np.ndarray) -> ScenePrior:
@@ -264,7 +266,7 @@ def sample(
     check_every = integer("check_every", check_every, low=1)
     thin = integer("thin", thin, low=1)
     tau_multiple = positive_float("tau_multiple", tau_multiple)
-    gen_ml, gen_ball, gen_mc = as_rng(rng).spawn(3)
+    gen_ml, gen_ball, gen_mc, gen_prior = as_rng(rng).spawn(4)
 
     walkers, centre = _initial(model, data, prior, start, n_walkers, gen_ml, gen_ball)
     logpost = LogPosterior(model, data, prior, _shift_for(prior, walkers), use_likelihood)
@@ -290,7 +292,7 @@ def sample(
                      progress, rhat_check)
     elapsed = time.perf_counter() - t0
     result = _assemble(model, data, prior, logpost, sampler, centre, burn, thin,
-                       relabel_sources)
+                       relabel_sources, gen_prior)
     if fixed:
         converged = bool(max_steps >= tau_multiple * np.max(result["tau"]))
     elif not converged:
@@ -305,8 +307,8 @@ def sample(
                            n_evaluations=logpost.n_calls, **result)
 
 
-def _assemble(model, data, prior, logpost, sampler, centre, burn, thin, relabel_sources
-              ) -> dict:
+def _assemble(model, data, prior, logpost, sampler, centre, burn, thin, relabel_sources,
+              gen_prior) -> dict:
     """Burn-in, thinning, relabelling, and the InferenceData."""
     from ._arviz import to_inference_data
 
@@ -348,7 +350,7 @@ def _assemble(model, data, prior, logpost, sampler, centre, burn, thin, relabel_
     idata = to_inference_data(
         x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),
         accepted=moved.T, pointwise=logpost.pointwise(x), data=data, constants=constants,
-        attrs=attrs)
+        attrs=attrs, prior_draws=prior.sample((1, PRIOR_DRAWS), gen_prior))
     return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,
                 names=tuple(prior.param_names), estimate=estimate, crlb_cov=crlb_cov,
                 start=centre, tau=tau, n_steps=n_steps, burn=burn, thin=thin,
