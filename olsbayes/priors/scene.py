@@ -80,8 +80,19 @@ class ScenePrior:
 
     Notes
     -----
-    The density is over labelled, exchangeable sources; see the module
-    docstring for the K! bookkeeping (``log_label_factor``, ``log_prob_ordered``).
+    **Exchangeable sources and K!.**  The same 1-D priors apply to every
+    source, so the density is symmetric under permutations of the K source
+    blocks: it is the normalised density of the *labelled* parameter vector
+    on the full product space (each unordered scene appears K! times).
+
+    * An evidence integrated over the full space with ``log_prob``/``ppf``
+      (nested sampling, or a Laplace sum over all K! copies) needs no K!
+      correction.
+    * Restricted to one canonical ordering (a wedge), the prior has mass 1/K!;
+      the normalised ordered density is ``log_prob_ordered = log_prob + log K!``.
+      A Laplace approximation around a single labelled mode, with
+      ``log_prob`` as the prior, counts one of K! equal copies: add
+      ``log_label_factor`` (= log K!) when the copies do not overlap.
     """
 
     def __init__(
