@@ -8,6 +8,8 @@ Levenberg–Marquardt refinement, i.e. a fraction of the array's resolution.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from .._validation import finite_array, positive_float
@@ -82,10 +84,23 @@ def check_grid(model: Model, grid: object) -> np.ndarray:
     return g
 
 
+_ATOMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def atoms(model: Model, grid: np.ndarray) -> np.ndarray:
-    """Unit-intensity responses of the grid locations, shape (M, N)."""
-    x = np.column_stack([grid, np.ones(grid.shape[0])])
-    return model.response(x)
+    """Unit-intensity responses of the grid locations, shape (M, N).
+
+    Cached per model (weakly) and grid, since a model's response never changes.
+    """
+    key = (grid.shape, hash(np.ascontiguousarray(grid).tobytes()))
+    per_model = _ATOMS.setdefault(model, {})
+    if key not in per_model:
+        if len(per_model) >= 8:
+            per_model.clear()
+        g = model.response(np.column_stack([grid, np.ones(grid.shape[0])]))
+        g.flags.writeable = False
+        per_model[key] = g
+    return per_model[key]
 
 
 def grid_step(model: Model, grid: np.ndarray) -> np.ndarray:

@@ -86,10 +86,11 @@ def _search_chunk(
     g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int, max_sweeps: int,
     plans: list[TuplePlan],
 ) -> np.ndarray:
-    """Candidate K-atom sets (T, C, K): pursuit start, then one per coarse subset."""
+    """Candidate K-atom sets (T, C, K): pursuit + alternating projection, then the
+    best tuple of each coarse subset (refined directly by LM afterwards)."""
     cands = [_alternate(g, gnorm2, s, _pursuit(g, gnorm2, s, k), max_sweeps)]
     for plan in plans:
-        cands.append(_alternate(g, gnorm2, s, tuple_search(plan, s), max_sweeps))
+        cands.append(tuple_search(plan, s))
     return np.stack(cands, axis=1)
 
 
@@ -124,7 +125,7 @@ def grid_search(
         Maximum alternating-projection sweeps.
     n_coarse : int
         For K >= 2, number of differently placed coarse atom subsets whose best
-        K-tuple (:mod:`olsbayes.ml.tuples`) also starts an alternating projection.
+        K-tuple (:mod:`olsbayes.ml.tuples`) is one more candidate.
     budget : int
         Cap on the number of K-tuples per coarse subset (sets its size).
 
