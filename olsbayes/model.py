@@ -12,6 +12,8 @@ matrix product and the law ``g(c)`` a clip -- multiply-adds only.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._validation import as_rng, finite_array, positive_float
@@ -27,6 +29,13 @@ __all__ = ["Model"]
 BLOCK_TERMS = 32768
 
 _LOC_NAMES = {"angle": ("theta",), "lonlat": ("lon", "lat"), "position": ("x", "y", "z")}
+
+
+def _fits_into(small: tuple[int, ...], big: tuple[int, ...]) -> bool:
+    """Whether ``small`` broadcasts to ``big`` without enlarging it."""
+    if len(small) > len(big):
+        return False
+    return all(a in (1, b) for a, b in zip(reversed(small), reversed(big)))
 
 
 class Model:
@@ -162,7 +171,10 @@ class Model:
         """Unit vectors (..., K, D) of far-field source locations (trig once per source)."""
         if self.kind == "angle":
             th = loc[..., 0]
-            return np.stack([np.cos(th), np.sin(th)], axis=-1)
+            u = np.empty(th.shape + (2,))
+            np.cos(th, out=u[..., 0])
+            np.sin(th, out=u[..., 1])
+            return u
         return lonlat_to_unit(loc[..., 0], loc[..., 1])
 
     def _gain(self, where: np.ndarray) -> np.ndarray:
@@ -188,7 +200,7 @@ class Model:
         x = self._as_params(scene_or_params)
         loc, inten = self._split(x)
         batch, k, n = inten.shape[:-1], inten.shape[-1], self.n_sensors
-        n_batch = int(np.prod(batch, dtype=np.int64))
+        n_batch = math.prod(batch)
         if k == 0 or n_batch == 0:
             return np.zeros(batch + (n,))
         where = loc.reshape(n_batch, k, self.n_loc)
@@ -245,7 +257,7 @@ class Model:
         """
         data = np.asarray(data, dtype=float)
         mu = self.response(scene_or_params)
-        if np.broadcast_shapes(data.shape, mu.shape) == mu.shape:
+        if _fits_into(data.shape, mu.shape):
             resid = np.subtract(data, mu, out=mu)  # in place: no second (..., N) array
         else:
             resid = data - mu
