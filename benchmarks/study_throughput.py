@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import multiprocessing
+import os
 import time
 from pathlib import Path
 
@@ -54,21 +55,24 @@ def study(executor, n, method="fast", trial=ring_estimate, chunk_size=None, **kw
 
 
 def throughput(n: int, repeats: int) -> dict:
+    """Trials per second, best of ``repeats`` rounds; each round runs serial, pool and
+    Dask back to back so that all three see the same background load."""
     from distributed import Client, LocalCluster
 
-    rates: dict[str, float] = {}
-    study("serial", 8)  # imports and caches outside the clock
-    rates["serial"] = n / min(timed(lambda: study("serial", n)) for _ in range(repeats))
+    times: dict[str, list[float]] = {"serial": [], "processes(2) warm": [],
+                                     "dask(2) warm": []}
     ctx = multiprocessing.get_context("forkserver")
-    with cf.ProcessPoolExecutor(2, mp_context=ctx) as pool:
+    with cf.ProcessPoolExecutor(2, mp_context=ctx) as pool, \
+            LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                         dashboard_address=None) as cluster, Client(cluster) as client:
+        study("serial", 8)  # imports and caches outside the clock
         study(pool, 8, chunk_size=4)
-        rates["processes(2) warm"] = n / min(timed(lambda: study(pool, n))
-                                             for _ in range(repeats))
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
         study(client, 8, chunk_size=4)
-        rates["dask(2) warm"] = n / min(timed(lambda: study(client, n))
-                                        for _ in range(repeats))
+        for _ in range(repeats):
+            times["serial"].append(timed(lambda: study("serial", n)))
+            times["processes(2) warm"].append(timed(lambda: study(pool, n)))
+            times["dask(2) warm"].append(timed(lambda: study(client, n)))
+    rates = {k: n / min(v) for k, v in times.items()}
     rates["processes(2) cold"] = n / timed(lambda: study("processes", n, workers=2))
     rates["dask(2) cold"] = n / timed(lambda: study("dask", n, workers=2))
     return rates
@@ -95,7 +99,8 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="paper-size run")
     ap.add_argument("--out", type=Path, default=Path("out/study_throughput"))
     args = ap.parse_args()
-    n, reps = (480, 3) if args.full else (160, 1)
+    n, reps = (480, 3) if args.full else (160, 2)
+    load0 = os.getloadavg()[0]
     rates = throughput(n, reps)
     ov = overhead(2000 if args.full else 500, 3)
     lines = [f"ML trials ({SETTINGS}, method fast), {n} trials, best of {reps}:"]
@@ -107,6 +112,9 @@ def main() -> None:
         f"{rates['dask(2) warm'] / rates['processes(2) warm']:.2f}   (target >= 0.8)",
         f"  ratio dask(2)/processes(2) (cold) = "
         f"{rates['dask(2) cold'] / rates['processes(2) cold']:.2f}",
+        f"  load average before/after: {load0:.1f} / {os.getloadavg()[0]:.1f} on "
+        f"{os.cpu_count()} cores (other processes share them: ratios are only meaningful "
+        "on an otherwise idle machine)",
         "Runner overhead (serial, seconds per trial):",
     ]
     lines += [f"  {k:<46s} {v * 1e6:9.1f} us" for k, v in ov.items()]

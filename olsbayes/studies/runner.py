@@ -6,6 +6,7 @@ import json
 import math
 import os
 import pickle
+import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -106,6 +107,16 @@ def _dataset(full: dict, grid: Grid, fingerprint: dict) -> Any:
 def _check_picklable(trial: Callable, backend_name: str) -> None:
     if backend_name in ("serial", "threads"):
         return
+    main = sys.modules.get("__main__")
+    main_file = getattr(main, "__file__", None)
+    if getattr(trial, "__module__", None) == "__main__" and not (
+        main_file and os.path.isfile(main_file)
+    ):
+        raise InputError(
+            f"trial {trial_name(trial)} is defined in an interactive session, which "
+            f"{backend_name} workers cannot import: put it in a module (a .py file) or use "
+            "executor='serial' or 'threads'"
+        )
     try:
         pickle.dumps(trial)
     except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing
