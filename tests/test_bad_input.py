@@ -25,6 +25,24 @@ def _ok(c):
     return np.zeros_like(c)
 
 
+def _priors():
+    import olsbayes.priors
+
+    return olsbayes.priors
+
+
+def _sample(data=DATA, **kw):
+    from olsbayes.posterior import sample
+
+    return sample(MODEL, data, 2, progress=False, **kw)
+
+
+def _select(**kw):
+    from olsbayes.select import select_k
+
+    return select_k(MODEL, DATA, **kw)
+
+
 # (label, callable, regex that the message must contain)
 API_CASES = [
     ("ring n < 3", lambda: ob.Ring(2), r"n must be in \[3"),
@@ -80,6 +98,17 @@ API_CASES = [
     ("fit data inf", lambda: ob.fit_ml(MODEL, np.full(30, np.inf), 2), "finite"),
     ("fit data 3-D", lambda: ob.fit_ml(MODEL, DATA[None, None], 2), "data"),
     ("fit model type", lambda: ob.fit_ml("ring", DATA, 2), "model"),
+    ("prior lo >= hi", lambda: _priors().Uniform(1.0, 0.0), "lo < hi"),
+    ("log-uniform lo = 0", lambda: _priors().LogUniform(0.0, 1.0), "lo"),
+    ("half-normal scale < 0", lambda: _priors().HalfNormal(-1.0), "scale"),
+    ("count prior k_max < 0", lambda: _priors().UniformCount(-1), "k_max"),
+    ("default priors without i_max", lambda: _priors().default_priors(MODEL, 1), "i_max"),
+    ("posterior too few walkers", lambda: _sample(n_walkers=3), "n_walkers"),
+    ("posterior unknown moves", lambda: _sample(moves="hmc"), "moves"),
+    ("posterior unknown start", lambda: _sample(start="middle"), "start"),
+    ("posterior 2-D data", lambda: _sample(data=np.vstack([DATA, DATA])), "data"),
+    ("select unknown method", lambda: _select(method="waic"), "method"),
+    ("select k_max < 0", lambda: _select(k_max=-1), "k_max"),
 ]
 
 
