@@ -21,6 +21,7 @@ from .errors import (
     ResolutionWarning,
 )
 from .geometry import Plate, Ring, SensorArray, Sphere, wrap_angle
+from .imaging import ImageResult, image
 from .ml import MLResult, fit_ml
 from .model import Model
 from .posterior import PosteriorResult, write_report
@@ -37,6 +38,8 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0+unknown"
 
 __all__ = [
+    "image",
+    "ImageResult",
     "__version__",
     # geometry and sensitivity
     "SensorArray",

@@ -1,0 +1,34 @@
+"""Imaging mode: intensities of sources at known directions (Fig. 2 of the paper).
+
+With the directions fixed, Eq. 1 is linear in the intensities, ``s = A I +
+noise``; :func:`image` returns their posterior under a Gaussian (closed form,
+with evidence), nonnegative, bounded or sparse (spike-and-slab) prior, plus the
+design matrix's rank, conditioning and null space -- what the array cannot see.
+"""
+
+from .core import PRIORS, SAMPLERS, image
+from .design import Design, analyse_design, check_directions, design_matrix
+from .gaussian import GaussianPosterior, gaussian_posterior
+from .result import ImageResult, hpd_interval, split_rhat
+from .sparse import GibbsSamples, gibbs_intensities
+from .truncated import TruncatedSamples, sample_truncated_gaussian, truncnorm_1d
+
+__all__ = [
+    "image",
+    "ImageResult",
+    "PRIORS",
+    "SAMPLERS",
+    "Design",
+    "design_matrix",
+    "analyse_design",
+    "check_directions",
+    "GaussianPosterior",
+    "gaussian_posterior",
+    "TruncatedSamples",
+    "sample_truncated_gaussian",
+    "truncnorm_1d",
+    "GibbsSamples",
+    "gibbs_intensities",
+    "hpd_interval",
+    "split_rhat",
+]

@@ -1,0 +1,202 @@
+"""``image``: intensities of sources at known directions, with their posterior."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from scipy.optimize import lsq_linear
+from scipy.special import ndtri
+
+from .._validation import as_rng, finite_array, integer, positive_float
+from ..errors import ConvergenceWarning, InputError, NullSpaceWarning
+from ..model import Model
+from .design import analyse_design, check_directions, design_matrix
+from .gaussian import gaussian_posterior
+from .result import ImageResult, hpd_interval, split_rhat
+from .sparse import gibbs_intensities
+from .truncated import sample_truncated_gaussian
+
+__all__ = ["image", "PRIORS", "SAMPLERS"]
+
+PRIORS = ("gaussian", "nonnegative", "bounded", "sparse")
+SAMPLERS = ("hmc", "gibbs")
+
+
+def _check_options(prior, sampler, level, null_warn):
+    if not isinstance(prior, str) or prior.lower() not in PRIORS:
+        raise InputError(f"prior must be one of {', '.join(map(repr, PRIORS))}; got {prior!r}")
+    if not isinstance(sampler, str) or sampler.lower() not in SAMPLERS:
+        raise InputError(
+            f"sampler must be one of {', '.join(map(repr, SAMPLERS))}; got {sampler!r}"
+        )
+    level = positive_float("level", level, upper=1.0)
+    if level >= 1.0:
+        raise InputError(f"level must be in (0, 1); got {level!r}")
+    null_warn = positive_float("null_warn", null_warn, upper=1.0)
+    return prior.lower(), sampler.lower(), level, null_warn
+
+
+def image(
+    model: Model,
+    data: np.ndarray,
+    directions: np.ndarray,
+    prior: str = "bounded",
+    i_max: float = 1.0,
+    rng: np.random.Generator | int | None = None,
+    *,
+    level: float = 0.9,
+    n_samples: int = 200,
+    n_chains: int = 4,
+    n_burn: int = 100,
+    sampler: str = "hmc",
+    prior_mean: float | None = None,
+    prior_sd: float | None = None,
+    null_warn: float = 0.1,
+) -> ImageResult:
+    """Posterior of the intensities of sources at known directions.
+
+    With the directions fixed Eq. 1 is linear, ``data = A I + noise``, with
+    ``A = design_matrix(model, directions)`` of shape (N, K).
+
+    Parameters
+    ----------
+    model : Model
+        Array, noise sd (``model.sigma``) and sensitivity law.
+    data : array_like, shape (N,)
+        One set of readings.
+    directions : array_like, shape (K, d) (or (K,) for a ring)
+        Known source locations: ring angles, sphere (longitude, latitude) in
+        rad, or plate positions.
+    prior : {"bounded", "nonnegative", "gaussian", "sparse"}
+        ``"bounded"``: I uniform on [0, i_max]; ``"nonnegative"``: flat on
+        I >= 0; ``"gaussian"``: independent N(prior_mean, prior_sd^2), closed
+        form with evidence; ``"sparse"``: spike-and-slab
+        ``(1 - w) delta_0 + w U(0, i_max)`` with w ~ Beta(1, 1).
+    i_max : float
+        Upper bound of the intensities (> 0); the scale of the Gaussian prior.
+    rng : Generator or seed, optional
+        Random stream of the samplers.
+    level : float
+        Credibility of the intervals (default 0.9).
+    n_samples, n_chains, n_burn : int
+        Draws kept per chain, chains, discarded trajectories/sweeps.
+    sampler : {"hmc", "gibbs"}
+        For the box priors: exact HMC (Pakman & Paninski) or single-site Gibbs.
+        The sparse prior always uses Gibbs.
+    prior_mean, prior_sd : float, optional
+        Gaussian prior (default i_max / 2 and i_max / 2).
+    null_warn : float
+        Warn :class:`NullSpaceWarning` when nullity / K exceeds this fraction.
+
+    Returns
+    -------
+    ImageResult
+
+    Raises
+    ------
+    InputError
+        Bad model, data length, directions (empty, wrong shape, latitude
+        outside [-pi/2, pi/2], unseen by every sub-sensor), i_max <= 0,
+        unknown prior or sampler names.
+    """
+    prior, sampler, level, null_warn = _check_options(prior, sampler, level, null_warn)
+    loc = check_directions(model, directions)
+    y = finite_array("data", data, ndim=1)
+    if y.shape[0] != model.n_sensors:
+        raise InputError(
+            f"data must have length {model.n_sensors} (one reading per sub-sensor); "
+            f"got {y.shape[0]}"
+        )
+    i_max = positive_float("i_max", i_max)
+    n_samples = integer("n_samples", n_samples, low=4)
+    n_chains = integer("n_chains", n_chains, low=1)
+    n_burn = integer("n_burn", n_burn, low=0)
+    gen = as_rng(rng)
+    a = design_matrix(model, loc)
+    design = analyse_design(a, loc, model.sigma, i_max)
+    k = loc.shape[0]
+    if design.nullity > null_warn * k:
+        warnings.warn(
+            f"the design matrix has rank {design.rank} for {k} directions: {design.nullity} "
+            "intensity combinations are invisible to the array and set by the prior alone "
+            "(see result.design.null_space)",
+            NullSpaceWarning,
+            stacklevel=2,
+        )
+    if prior == "gaussian":
+        return _gaussian(a, y, model.sigma, design, i_max, level, prior_mean, prior_sd)
+    hi = np.inf if prior == "nonnegative" else i_max
+    mode = lsq_linear(a, y, bounds=(0.0, hi), method="bvls").x
+    x0 = _starts(mode, n_chains, hi, i_max, gen)
+    if prior == "sparse":
+        x0 = np.where(x0 < 1e-3 * i_max, 0.0, x0)
+        run = gibbs_intensities(a, y, model.sigma, i_max, x0, n_samples, gen, n_burn=n_burn,
+                                spike=True)
+        draws, acc, used = run.samples, 1.0, "gibbs"
+    elif sampler == "gibbs":
+        run = gibbs_intensities(a, y, model.sigma, hi, x0, n_samples, gen, n_burn=n_burn)
+        draws, acc, used = run.samples, 1.0, "gibbs"
+    else:
+        draws, acc = _hmc(a, y, model.sigma, hi, i_max, x0, n_samples, n_burn, gen, design)
+        used = "hmc"
+    return _from_draws(prior, draws, mode, design, level, hi, acc, used)
+
+
+def _starts(mode, n_chains, hi, i_max, gen):
+    """Chains start at the bounded least-squares mode, jittered into the box."""
+    jitter = 0.01 * i_max * gen.random((n_chains, mode.shape[0]))
+    x0 = np.abs(mode + jitter * gen.choice([-1.0, 1.0], size=jitter.shape))
+    return np.minimum(x0, hi - 1e-6 * i_max) if np.isfinite(hi) else x0
+
+
+def _hmc(a, y, sigma, hi, i_max, x0, n_samples, n_burn, gen, design):
+    q = a.T @ a / sigma**2
+    b = a.T @ y / sigma**2
+    k = q.shape[0]
+    ridge = 0.0 if design.nullity == 0 and design.singular_values[-1] / sigma > 1e-3 / i_max else (
+        1.0 / i_max**2
+    )
+    run = sample_truncated_gaussian(
+        q, b, np.zeros(k), np.full(k, hi), x0, n_samples, gen, n_burn=n_burn, ridge=ridge,
+        centre=np.full(k, 0.5 * i_max),
+    )
+    return run.samples, run.acceptance
+
+
+def _gaussian(a, y, sigma, design, i_max, level, prior_mean, prior_sd):
+    k = a.shape[1]
+    m0 = 0.5 * i_max
+    if prior_mean is not None:
+        m0 = float(finite_array("prior_mean", prior_mean, ndim=0))
+    s0 = 0.5 * i_max if prior_sd is None else positive_float("prior_sd", prior_sd)
+    post = gaussian_posterior(a, y, sigma, np.full(k, m0), np.full(k, s0))
+    z = ndtri(0.5 + level / 2)
+    sd = post.sd
+    return ImageResult(
+        prior="gaussian", directions=design.directions, mean=post.mean, mode=post.mean, sd=sd,
+        lower=post.mean - z * sd, upper=post.mean + z * sd, level=level, design=design,
+        log_evidence=post.log_evidence,
+    )
+
+
+def _from_draws(prior, draws, mode, design, level, hi, acc, used):
+    flat = draws.reshape(-1, draws.shape[-1])
+    k = flat.shape[1]
+    lo_b, hi_b = np.zeros(k), np.full(k, hi)
+    lower, upper = hpd_interval(flat, level, lo_b, hi_b)
+    rhat = float(np.nanmax(split_rhat(draws))) if draws.shape[0] > 1 else float("nan")
+    if rhat > 1.1:
+        warnings.warn(
+            f"the {used} chains have not mixed: largest split R-hat {rhat:.3g} > 1.1; "
+            "increase n_samples/n_burn and treat sd and intervals with care",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+    p_bright = np.mean(flat > 0, axis=0) if prior == "sparse" else None
+    return ImageResult(
+        prior=prior, directions=design.directions, mean=flat.mean(axis=0),
+        mode=np.median(flat, axis=0) if prior == "sparse" else mode,
+        sd=flat.std(axis=0, ddof=1), lower=lower, upper=upper, level=level, design=design,
+        samples=draws, p_bright=p_bright, rhat=rhat, acceptance=acc, sampler=used,
+    )

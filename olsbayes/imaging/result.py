@@ -1,0 +1,157 @@
+"""The imaging result and the sample summaries it is built from."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .design import Design
+
+__all__ = ["ImageResult", "hpd_interval", "split_rhat"]
+
+
+def hpd_interval(
+    samples: np.ndarray, level: float, lower: np.ndarray, upper: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Shortest intervals holding ``level`` of the draws, per column.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (S, K)
+    level : float in (0, 1)
+    lower, upper : ndarray, shape (K,)
+        Support bounds.  When fewer than a tenth of the excluded draws lie below
+        the shortest window (above it), the density is highest at that edge and
+        the interval is extended to the support bound there -- so a dark pixel
+        whose posterior piles up at 0 gets an interval that contains 0.
+
+    Returns
+    -------
+    lo, hi : ndarray, shape (K,)
+    """
+    s = np.sort(samples, axis=0)
+    n = s.shape[0]
+    m = max(1, int(np.ceil(level * n)))
+    widths = s[m - 1 :] - s[: n - m + 1]
+    start = np.argmin(widths, axis=0)
+    cols = np.arange(s.shape[1])
+    lo, hi = s[start, cols], s[start + m - 1, cols]
+    edge = 0.1 * (n - m)
+    lo = np.where((start <= edge) & np.isfinite(lower), lower, lo)
+    hi = np.where((n - m - start <= edge) & np.isfinite(upper), upper, hi)
+    return lo, hi
+
+
+def split_rhat(chains: np.ndarray) -> np.ndarray:
+    """Split-chain potential scale reduction (Gelman et al. 2013), shape (K,).
+
+    ``chains`` has shape (C, S, K).  Constant columns give 1.
+    """
+    c, s, k = chains.shape
+    h = s // 2
+    if h < 2:
+        return np.full(k, np.nan)
+    parts = np.concatenate([chains[:, :h], chains[:, s - h :]], axis=0)  # (2C, h, K)
+    w = parts.var(axis=1, ddof=1).mean(axis=0)
+    b = h * parts.mean(axis=1).var(axis=0, ddof=1)
+    var = (h - 1) / h * w + b / h
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.sqrt(var / w)
+    return np.where(w > 0, r, 1.0)
+
+
+@dataclass(frozen=True)
+class ImageResult:
+    """Posterior of source intensities at known directions.
+
+    Attributes
+    ----------
+    prior : str
+        ``"gaussian"``, ``"nonnegative"``, ``"bounded"`` or ``"sparse"``.
+    directions : ndarray, shape (K, d)
+        Source locations (rad; length units for near-source positions).
+    mean : ndarray, shape (K,)
+        Posterior mean of the intensities (the estimate minimising expected
+        squared error).
+    mode : ndarray, shape (K,)
+        A posterior mode: the Gaussian mean; bounded least squares for the box
+        priors (not unique when the design has a null space); for ``"sparse"``
+        the posterior median (a pixel is dark if P(I = 0) > 1/2).
+    sd : ndarray, shape (K,)
+        Posterior standard deviations.
+    lower, upper : ndarray, shape (K,)
+        Credible intervals at ``level`` (closed form for the Gaussian prior,
+        highest-density from draws otherwise).
+    level : float
+        Credibility of the intervals.
+    design : Design
+        Rank, conditioning and null space of the design matrix.
+    samples : ndarray, shape (C, S, K) or None
+        Posterior draws per chain (None for the closed-form Gaussian).
+    p_bright : ndarray, shape (K,) or None
+        Sparse prior: posterior probability that each source is not dark.
+    log_evidence : float or None
+        Gaussian prior: log p(data) (natural log).
+    rhat : float
+        Largest split R-hat over intensities (1 for the closed form).
+    acceptance : float
+        HMC acceptance rate (1 for Gibbs and the closed form).
+    sampler : str
+        ``"closed-form"``, ``"hmc"`` or ``"gibbs"``.
+    """
+
+    prior: str
+    directions: np.ndarray
+    mean: np.ndarray
+    mode: np.ndarray
+    sd: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    level: float
+    design: Design
+    samples: np.ndarray | None = None
+    p_bright: np.ndarray | None = None
+    log_evidence: float | None = None
+    rhat: float = 1.0
+    acceptance: float = 1.0
+    sampler: str = "closed-form"
+
+    @property
+    def n_sources(self) -> int:
+        """Number K of imaged directions."""
+        return int(self.mean.shape[0])
+
+    @property
+    def rank(self) -> int:
+        """Numerical rank of the design matrix."""
+        return self.design.rank
+
+    @property
+    def null_fraction(self) -> np.ndarray:
+        """Per direction, how much of its intensity the readings cannot see (0..1)."""
+        return self.design.null_fraction
+
+    def covers(self, truth: np.ndarray) -> np.ndarray:
+        """Boolean mask, shape (K,): whether each interval contains ``truth``."""
+        t = np.asarray(truth, dtype=float)
+        return (self.lower <= t) & (t <= self.upper)
+
+    def summary(self) -> dict:
+        """A JSON-ready dict of the scalar facts of the result."""
+        return {
+            "prior": self.prior,
+            "n_sources": self.n_sources,
+            "n_sensors": int(self.design.matrix.shape[0]),
+            "rank": self.design.rank,
+            "effective_rank": self.design.effective_rank,
+            "nullity": self.design.nullity,
+            "condition": self.design.condition,
+            "level": self.level,
+            "mean_sd": float(np.mean(self.sd)),
+            "log_evidence": self.log_evidence,
+            "rhat": self.rhat,
+            "acceptance": self.acceptance,
+            "sampler": self.sampler,
+            "n_draws": 0 if self.samples is None else int(np.prod(self.samples.shape[:2])),
+        }

@@ -1,0 +1,283 @@
+"""Imaging mode: closed forms vs brute force, exact samplers vs numerical integration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+import olsbayes as ob
+from olsbayes.errors import ConvergenceWarning, InputError, NullSpaceWarning
+from olsbayes.imaging import (
+    design_matrix,
+    gaussian_posterior,
+    gibbs_intensities,
+    hpd_interval,
+    image,
+    sample_truncated_gaussian,
+    split_rhat,
+    truncnorm_1d,
+)
+
+
+def _batch_se(draws: np.ndarray, n_batches: int = 20) -> np.ndarray:
+    """Monte Carlo standard error of the mean by batch means; draws (S, ...)."""
+    s = draws.shape[0] - draws.shape[0] % n_batches
+    means = draws[:s].reshape((n_batches, -1) + draws.shape[1:]).mean(axis=1)
+    return means.std(axis=0, ddof=1) / np.sqrt(n_batches)
+
+
+@pytest.fixture
+def ring_problem():
+    model = ob.Model(ob.Ring(8), sigma=0.3)
+    dirs = np.array([0.3, 2.0])
+    a = design_matrix(model, dirs)
+    y = a @ np.array([0.6, 0.2]) + model.sigma * np.random.default_rng(3).standard_normal(8)
+    return model, dirs, a, y
+
+
+# -- design matrix ---------------------------------------------------------------
+def test_design_matrix_columns_are_unit_source_responses():
+    model = ob.Model(ob.Sphere.grid(5, 8), sigma=0.01)
+    dirs = np.array([[0.1, 0.2], [-1.0, 0.5], [2.5, -0.4]])
+    a = design_matrix(model, dirs)
+    inten = np.array([0.3, 1.2, 0.7])
+    x = np.column_stack([dirs, inten]).ravel()
+    np.testing.assert_allclose(a @ inten, model.response(x), rtol=1e-12, atol=1e-14)
+
+
+def test_antipodal_pairs_make_the_cosine_design_rank_deficient():
+    # costn(c) - costn(-c) = c: a sub-sensor and its antipode see a linear function
+    # of the source's unit vector, so the ring design loses rank.
+    model = ob.Model(ob.Ring(8), sigma=0.01)
+    dirs = np.linspace(-np.pi, np.pi, 16, endpoint=False)
+    with pytest.warns(NullSpaceWarning):
+        res = image(model, np.zeros(8), dirs, prior="gaussian")
+    assert res.rank == np.linalg.matrix_rank(design_matrix(model, dirs)) < 8
+    null = res.design.null_space
+    np.testing.assert_allclose(res.design.matrix @ null, 0.0, atol=1e-10)
+    np.testing.assert_allclose(res.null_fraction.sum(), 16 - res.rank, rtol=1e-10)
+
+
+# -- Gaussian prior --------------------------------------------------------------
+def test_gaussian_posterior_matches_brute_force_grid(ring_problem):
+    model, dirs, a, y = ring_problem
+    m0, s0 = np.array([0.5, 0.4]), np.array([0.5, 0.3])
+    post = gaussian_posterior(a, y, model.sigma, m0, s0)
+    g = np.linspace(-2.5, 3.5, 801)
+    i1, i2 = np.meshgrid(g, g, indexing="ij")
+    pts = np.stack([i1, i2], axis=-1)
+    resid = y - pts @ a.T
+    logp = (
+        -0.5 * np.sum(resid**2, axis=-1) / model.sigma**2
+        - 0.5 * len(y) * np.log(2 * np.pi * model.sigma**2)
+        + stats.norm.logpdf(pts, m0, s0).sum(axis=-1)
+    )
+    da = (g[1] - g[0]) ** 2
+    mx = logp.max()
+    w = np.exp(logp - mx)
+    z = w.sum() * da
+    mean = np.einsum("ijk,ij->k", pts, w) * da / z
+    dev = pts - mean
+    cov = np.einsum("ijk,ijl,ij->kl", dev, dev, w) * da / z
+    np.testing.assert_allclose(post.mean, mean, atol=1e-6)
+    np.testing.assert_allclose(post.cov, cov, atol=1e-6)
+    assert post.log_evidence == pytest.approx(mx + np.log(z), abs=1e-6)
+
+
+def test_image_gaussian_is_the_closed_form(ring_problem):
+    model, dirs, a, y = ring_problem
+    res = image(model, y, dirs, prior="gaussian", prior_mean=0.2, prior_sd=0.7, level=0.8)
+    post = gaussian_posterior(a, y, model.sigma, np.full(2, 0.2), np.full(2, 0.7))
+    np.testing.assert_allclose(res.mean, post.mean)
+    np.testing.assert_allclose(res.sd, post.sd)
+    z = stats.norm.ppf(0.9)
+    np.testing.assert_allclose(res.upper - res.lower, 2 * z * post.sd)
+    assert res.log_evidence == pytest.approx(post.log_evidence)
+
+
+# -- truncated Gaussians ---------------------------------------------------------
+@pytest.mark.parametrize(
+    "m,s,lo,hi", [(0.3, 0.5, 0.0, 1.0), (0.0, 1.0, 6.0, 7.0), (2.0, 0.1, -1.0, 0.5)]
+)
+def test_truncnorm_1d_moments(m, s, lo, hi):
+    x = truncnorm_1d(np.full(40_000, m), s, lo, hi, np.random.default_rng(1))
+    ref = stats.truncnorm((lo - m) / s, (hi - m) / s, m, s)
+    assert np.all((x >= lo) & (x <= hi))
+    se = ref.std() / np.sqrt(x.size)
+    assert abs(x.mean() - ref.mean()) < 5 * se
+    assert x.std() == pytest.approx(ref.std(), rel=5 * np.sqrt(1 / x.size))
+
+
+def _box_moments_2d(q, b, lo, hi):
+    """Mean and covariance of exp(-x'Qx/2 + b'x) on a 2-D box by quadrature."""
+    def dens(x2, x1):
+        x = np.array([x1, x2])
+        return np.exp(-0.5 * x @ q @ x + b @ x)
+    opts = dict(epsabs=1e-12, epsrel=1e-10)
+    z = integrate.dblquad(dens, lo[0], hi[0], lo[1], hi[1], **opts)[0]
+    mom = {}
+    for key, f in {"1": lambda u, v: v, "2": lambda u, v: u, "11": lambda u, v: v * v,
+                   "22": lambda u, v: u * u, "12": lambda u, v: u * v}.items():
+        mom[key] = integrate.dblquad(lambda u, v: f(u, v) * dens(u, v), lo[0], hi[0],
+                                     lo[1], hi[1], **opts)[0] / z
+    mean = np.array([mom["1"], mom["2"]])
+    cov = np.array([[mom["11"], mom["12"]], [mom["12"], mom["22"]]]) - np.outer(mean, mean)
+    return mean, cov
+
+
+@pytest.mark.parametrize("singular", [False, True])
+def test_exact_hmc_matches_2d_quadrature(singular):
+    if singular:  # rank-1 precision: needs the ridge surrogate + Metropolis correction
+        v = np.array([1.0, 1.0])
+        q, b = 8.0 * np.outer(v, v), 8.0 * 0.9 * v
+    else:  # strongly correlated, mean outside the box
+        q = np.linalg.inv(np.array([[0.25, 0.2], [0.2, 0.25]]))
+        b = q @ np.array([1.2, -0.3])
+    lo, hi = np.zeros(2), np.ones(2)
+    mean, cov = _box_moments_2d(q, b, lo, hi)
+    run = sample_truncated_gaussian(
+        q, b, lo, hi, np.full((8, 2), 0.5), 1500, np.random.default_rng(7), n_burn=50,
+        ridge=1.0 if singular else 0.0, centre=np.full(2, 0.5),
+    )
+    x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
+    assert np.all((x >= 0) & (x <= 1))
+    flat = x.reshape(-1, 2)
+    se = _batch_se(x.mean(axis=1))
+    np.testing.assert_array_less(np.abs(flat.mean(axis=0) - mean), 5 * se)
+    d2 = (flat - mean) ** 2
+    se2 = _batch_se(((x - mean) ** 2).mean(axis=1))
+    np.testing.assert_array_less(np.abs(d2.mean(axis=0) - np.diag(cov)), 5 * se2)
+    if not singular:
+        assert run.acceptance == 1.0  # exact dynamics, no correction needed
+    assert 0.3 < run.acceptance <= 1.0
+
+
+def test_exact_hmc_1d_matches_scipy_truncnorm():
+    m, s = 0.3, 0.5
+    run = sample_truncated_gaussian(
+        np.array([[1 / s**2]]), np.array([m / s**2]), np.zeros(1), np.ones(1),
+        np.full((4, 1), 0.5), 3000, np.random.default_rng(2), n_burn=10,
+    )
+    ref = stats.truncnorm(-m / s, (1 - m) / s, m, s)
+    x = np.moveaxis(run.samples[..., 0], 1, 0)  # (S, C)
+    se = _batch_se(x.mean(axis=1))
+    assert abs(x.mean() - ref.mean()) < 5 * se
+    se2 = _batch_se(((x - ref.mean()) ** 2).mean(axis=1))
+    assert abs(np.mean((x - ref.mean()) ** 2) - ref.var()) < 5 * se2
+
+
+def test_spike_and_slab_gibbs_matches_brute_force():
+    # Two intensities; the posterior mixes four spike/slab configurations.
+    a = np.array([[1.0, 0.4], [0.3, 1.0], [0.5, 0.5]])
+    y = np.array([0.55, 0.2, 0.35])
+    sigma, i_max = 0.2, 1.0
+    w = 0.3  # fixed by a very tight Beta hyperprior
+    run = gibbs_intensities(a, y, sigma, i_max, np.zeros((8, 2)), 3000, np.random.default_rng(4),
+                            n_burn=50, spike=True, w_prior=(3e6, 7e6))
+
+    def lik(x1, x2):
+        return np.exp(-0.5 * np.sum((y - a @ np.array([x1, x2])) ** 2) / sigma**2)
+
+    slab = w / i_max
+    mass = {
+        (0, 0): (1 - w) ** 2 * lik(0, 0),
+        (1, 0): (1 - w) * slab * integrate.quad(lambda u: lik(u, 0), 0, 1)[0],
+        (0, 1): (1 - w) * slab * integrate.quad(lambda u: lik(0, u), 0, 1)[0],
+        (1, 1): slab**2 * integrate.dblquad(lambda u, v: lik(v, u), 0, 1, 0, 1)[0],
+    }
+    z = sum(mass.values())
+    p_on1 = (mass[(1, 0)] + mass[(1, 1)]) / z
+    mean1 = (
+        (1 - w) * slab * integrate.quad(lambda u: u * lik(u, 0), 0, 1)[0]
+        + slab**2 * integrate.dblquad(lambda u, v: v * lik(v, u), 0, 1, 0, 1)[0]
+    ) / z
+    x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
+    on1 = (x[..., 0] > 0).mean(axis=1)
+    assert abs(on1.mean() - p_on1) < 5 * _batch_se(on1)
+    m1 = x[..., 0].mean(axis=1)
+    assert abs(m1.mean() - mean1) < 5 * _batch_se(m1)
+
+
+# -- summaries -------------------------------------------------------------------
+def test_hpd_interval_reaches_the_bound_when_mass_piles_there():
+    rng = np.random.default_rng(0)
+    s = np.column_stack([rng.exponential(0.05, 4000), rng.normal(0.5, 0.1, 4000)])
+    lo, hi = hpd_interval(s, 0.9, np.zeros(2), np.ones(2))
+    assert lo[0] == 0.0 and hi[0] == pytest.approx(stats.expon(scale=0.05).ppf(0.9), rel=0.1)
+    assert lo[1] == pytest.approx(0.5 - 1.645 * 0.1, abs=0.02)
+
+
+def test_split_rhat_flags_separated_chains():
+    rng = np.random.default_rng(0)
+    good = rng.standard_normal((4, 500, 3))
+    assert np.all(np.abs(split_rhat(good) - 1) < 0.02)
+    bad = good + np.array([0.0, 0.0, 3.0, 3.0])[:, None, None]
+    assert np.all(split_rhat(bad) > 1.5)
+
+
+# -- the public entry point -------------------------------------------------------
+def test_bounded_image_on_a_well_posed_ring():
+    model = ob.Model(ob.Ring(30), sigma=0.05)
+    dirs = np.array([-2.0, 0.0, 2.0])  # not antipodal: full rank
+    truth = np.array([0.9, 0.0, 0.4])
+    noise = model.sigma * np.random.default_rng(9).standard_normal(30)
+    y = design_matrix(model, dirs) @ truth + noise
+    res = image(model, y, dirs, prior="bounded", rng=1, n_samples=400, n_burn=50)
+    assert res.rank == 3 and res.sampler == "hmc" and res.samples.shape == (4, 400, 3)
+    assert res.rhat < 1.05
+    assert np.all((res.samples >= 0) & (res.samples <= 1))
+    assert np.all(np.abs(res.mean - truth) < 4 * res.sd + 0.02)
+    assert res.lower[1] == 0.0  # the dark source's interval reaches 0
+    gib = image(model, y, dirs, prior="bounded", rng=2, n_samples=400, sampler="gibbs")
+    np.testing.assert_allclose(gib.mean, res.mean, atol=4 * res.sd.max() / np.sqrt(100))
+
+
+def test_image_is_reproducible_with_a_seed(ring_problem):
+    model, dirs, a, y = ring_problem
+    r1 = image(model, y, dirs, rng=5, n_samples=20, n_burn=5)
+    r2 = image(model, y, dirs, rng=5, n_samples=20, n_burn=5)
+    np.testing.assert_array_equal(r1.samples, r2.samples)
+
+
+def test_poorly_mixed_chains_warn():
+    model = ob.Model(ob.Ring(30), sigma=0.05)
+    dirs = np.linspace(-0.4, 0.4, 9)  # far closer than the sub-sensor spacing
+    y = design_matrix(model, dirs) @ np.full(9, 0.5)
+    with pytest.warns(ConvergenceWarning):
+        image(model, y, dirs, prior="bounded", sampler="gibbs", rng=0, n_samples=20, n_burn=0,
+              null_warn=1.0)
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(directions=np.zeros((0, 2))), "at least one"),
+        (dict(directions=np.array([[0.0, 2.0]])), "latitude"),
+        (dict(directions=np.array([0.1, 0.2])), "shape"),
+        (dict(directions=np.array([[0.0, 0.1, 0.2]])), "shape"),
+        (dict(directions=np.array([[0.0, np.nan]])), "finite"),
+        (dict(data=np.zeros(5)), "length 40"),
+        (dict(i_max=0.0), "i_max"),
+        (dict(i_max=-1.0), "i_max"),
+        (dict(prior="laplace"), "prior"),
+        (dict(sampler="nuts"), "sampler"),
+        (dict(level=1.0), "level"),
+        (dict(n_samples=1), "n_samples"),
+    ],
+)
+def test_bad_inputs_raise_input_error(kwargs, match):
+    model = ob.Model(ob.Sphere.grid(5, 8), sigma=0.01)
+    args = dict(model=model, data=np.zeros(40), directions=np.array([[0.0, 0.0]]))
+    args.update(kwargs)
+    with pytest.raises(InputError, match=match):
+        image(**args)
+
+
+def test_unseen_direction_raises():
+    plate = ob.Model(ob.Plate.grid(3, 3), sigma=0.01)
+    with pytest.raises(InputError, match="z > 0"):
+        image(plate, np.zeros(9), np.array([[0.0, 0.0, -1.0]]))
+    hemi = ob.Model(ob.Sphere.grid(3, 6, np.pi / 4, lon_range=(-0.5, 0.5)), sigma=0.01)
+    with pytest.raises(InputError, match="seen by no sub-sensor"):
+        image(hemi, np.zeros(18), np.array([[np.pi, 0.0]]))
