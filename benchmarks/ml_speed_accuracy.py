@@ -36,7 +36,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.ml import fit_ml  # noqa: E402
+from olsbayes.ml import estimation_errors, fit_ml  # noqa: E402
 from olsbayes.ml.batch import refine_batch  # noqa: E402
 
 
@@ -50,12 +50,6 @@ def settings() -> list[tuple[str, float, ob.Scene]]:
         out.append((f"K={k} s=0.01", 1e-2,
                     ob.Scene(directions=ang, intensities=np.linspace(1.0, 0.6, k))))
     return out
-
-
-def _errors(model: ob.Model, est: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    err = est - truth
-    err[..., 0::2] = ob.wrap_angle(err[..., 0::2])
-    return err
 
 
 def _timed_loop(fn, data: np.ndarray):
@@ -95,7 +89,7 @@ def run_setting(name, sigma, scene, n_trials, n_ms, rng):
     rows = []
     for meth, (params, ll, tfit) in out.items():
         t = params.shape[0]
-        err = _errors(model, params, truth)
+        err = estimation_errors(model, params, truth)
         eff = std**2 / np.mean(err**2, axis=0)
         fail = np.mean(np.any(np.abs(err) > 5 * std, axis=1))
         gap = best[:t] - ll

@@ -165,3 +165,15 @@ def test_bad_options():
         fit_ml(model, np.zeros(30), 1, method="multistart", n_starts=0)
     with pytest.raises(InputError, match="rng"):
         fit_ml(model, np.zeros(30), 1, rng=-1)
+
+
+def test_estimation_errors_match_sources_before_differencing():
+    from olsbayes.ml import estimation_errors
+
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    truth = np.array([-3.0, 1.0, 3.0, 0.2])
+    # the weak source (3.0 -> 3.2) wraps past -pi, so angle order puts it first
+    est = model.canonical(np.array([-2.99, 1.01, 3.2, 0.2]))
+    np.testing.assert_allclose(est[:2], [3.2 - 2 * np.pi, 0.2])
+    err = estimation_errors(model, np.stack([est, est]), truth)
+    np.testing.assert_allclose(err, [[0.01, 0.01, 0.2, 0.0]] * 2, atol=1e-12)

@@ -14,7 +14,10 @@ order, its log-likelihood, convergence flags and the inverse Fisher matrix.
 
 from .api import METHODS, fit_ml
 from .batch import refine_batch
+from .evaluate import estimation_errors
 from .grid import default_grid
 from .result import MLResult
 
-__all__ = ["fit_ml", "MLResult", "METHODS", "refine_batch", "default_grid"]
+__all__ = [
+    "fit_ml", "MLResult", "METHODS", "refine_batch", "default_grid", "estimation_errors",
+]
