@@ -13,7 +13,9 @@ from .result import PosteriorResult
 __all__ = ["unwrap_around", "summary", "crlb_check", "CRLBCheck"]
 
 #: Below this ratio I / sd_CRLB(I) a source counts as low-SNR (nonlinear regime).
-LOW_SNR = 5.0
+LOW_SNR = 10.0
+#: A sub-sensor horizon closer than this many CRLB sds makes a source "near the kink".
+KINK_SDS = 2.0
 #: CRLB correlation above which two parameters are near the resolution limit.
 HIGH_CORRELATION = 0.9
 
@@ -69,9 +71,13 @@ class CRLBCheck:
     flagged : ndarray of bool (P,)
         ``|ratio - 1| > max(rtol, 3 mc_error)``.
     reasons : tuple of str
-        Why a ratio may differ from 1 (empty when nothing explains it):
-        ``prior-dominated``, ``near a prior boundary``, ``near the resolution
-        limit``, ``unidentifiable``, ``low SNR``, ``on the kink``, ``poor mixing``.
+        Known causes present for each parameter (empty when none):
+        ``unidentifiable`` (CRLB inf); ``prior-dominated`` (CRLB sd > 0.3 prior
+        sd); ``near a prior boundary`` (support edge within 3 CRLB sd);
+        ``near the resolution limit`` (|CRLB correlation| > 0.9 with another
+        parameter); ``low SNR`` (I / CRLB sd of I < 10 for the source);
+        ``near the kink`` (a sub-sensor horizon within 2 CRLB sd of the
+        direction); ``poor mixing`` (bulk ESS < 100 or R-hat > 1.05).
     """
 
     names: tuple[str, ...]
@@ -135,14 +141,14 @@ def _reasons(result: PosteriorResult, table, crlb_sd: np.ndarray) -> list[list[s
         if src is not None and snr[src] < LOW_SNR:
             out[j].append("low SNR")
         if src is not None and kink[src]:
-            out[j].append("near the kink (a sub-sensor within 3 sd of the source's horizon)")
+            out[j].append("near the kink (a sub-sensor horizon within 2 sd)")
         if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > 1.05:
             out[j].append("poor mixing")
     return out
 
 
 def _near_kink(result: PosteriorResult, crlb_sd: np.ndarray) -> np.ndarray:
-    """Per source: a sub-sensor's horizon (c = 0) within 3 CRLB sd of the direction.
+    """Per source: a sub-sensor's horizon (c = 0) within KINK_SDS CRLB sd of the direction.
 
     For distant sources |c| is the sine of the angle to the horizon, compared
     with the largest location sd (rad); for plates only an exact kink counts.
@@ -156,7 +162,7 @@ def _near_kink(result: PosteriorResult, crlb_sd: np.ndarray) -> np.ndarray:
     margin = np.arcsin(np.min(np.abs(model.cosines(x)), axis=-1))  # (K,) rad
     loc_sd = crlb_sd[: k * w].reshape(k, w)[:, :-1]
     loc_sd = np.where(np.isfinite(loc_sd), loc_sd, np.inf).max(axis=1)
-    return margin < 3 * loc_sd
+    return margin < KINK_SDS * loc_sd
 
 
 def crlb_check(result: PosteriorResult, rtol: float = 0.2) -> CRLBCheck:
