@@ -84,8 +84,14 @@ def _img(path: Path, alt: str) -> str:
             "</figcaption></figure>")
 
 
+def _show(value) -> str:
+    if isinstance(value, (float, np.floating)):
+        return f"{value:.4g}"
+    return str(value)
+
+
 def _html(title: str, info: dict, table, files: dict[str, Path]) -> str:
-    rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>"
+    rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(_show(v))}</td></tr>"
                    for k, v in info.items())
     flagged = table.index[table["crlb_flagged"].astype(bool)].tolist()
     verdict = ("Every posterior sd agrees with its CRLB." if not flagged else
@@ -100,6 +106,10 @@ def _html(title: str, info: dict, table, files: dict[str, Path]) -> str:
         f"<style>{style}</style></head><body><h1>{html.escape(title)}</h1>"
         f"<h2>Run</h2><table>{rows}</table>"
         f"<h2>Posterior summary and CRLB audit</h2><p>{html.escape(verdict)}</p>"
+        "<p>Angles in rad (summarised circularly; an HDI straddling &plusmn;&pi; reads "
+        "hi &lt; lo), intensities in reading units.  crlb: Cram&eacute;r&ndash;Rao bound on "
+        "the sd at the posterior mean; sd_over_crlb is 1 within crlb_mc_error at high SNR; "
+        "tau: emcee integrated autocorrelation time (steps).</p>"
         f"{table.to_html(float_format=lambda v: f'{v:.6g}', na_rep='')}"
         f"<h2>Corner plot</h2>{_img(files['corner'], 'Corner plot with CRLB ellipses')}"
         f"<h2>Traces</h2>{_img(files['trace'], 'Walker traces')}"
