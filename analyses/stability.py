@@ -55,7 +55,7 @@ def failures(ds) -> dict:
             "fail_any": err | conv | wrong}
 
 
-def rates(ds) -> "object":
+def rates(ds):
     import xarray as xr
 
     f = failures(ds)

@@ -68,7 +68,10 @@ def test_same_numbers_on_every_executor_worker_count_and_chunking():
                       dashboard_address=None) as cluster, Client(cluster) as client:
         dask = run_study(noise_check, GRID, 24, executor=client, rng=7, chunk_size=7,
                          progress=False)
-    assert dask.identical(ref)
+        by_address = run_study(noise_check, GRID, 24, executor="dask", rng=7,
+                               scheduler=cluster.scheduler_address, progress=False)
+        assert client.submit(int, 2).result() == 2  # the user's client is left open
+    assert dask.identical(ref) and by_address.identical(ref)
     # the vectorised form draws the same streams: same scenes and noise
     batch = run_study(noise_check_batch, GRID, 24, executor="serial", rng=7, chunk_size=9,
                       progress=False)
