@@ -114,6 +114,9 @@ def test_support_mass_is_the_gaussian_mass_inside_the_box():
     want = np.log(stats.norm(x[:, 1], 0.05).cdf(2.0) - stats.norm(x[:, 1], 0.05).cdf(0.0))
     np.testing.assert_allclose(support_log_mass(x, sd, prior), want, rtol=1e-10)
     assert support_log_mass(x[0], sd, prior) == pytest.approx(math.log(0.5))
+    # an angle Gaussian wider than the circle is capped at the whole prior
+    wide = support_log_mass(x[1], np.array([10.0, 0.05]), prior)
+    assert wide == pytest.approx(want[1] + math.log(2 * np.pi / (math.sqrt(2 * np.pi) * 10.0)))
 
 
 def test_laplace_rejects_bad_hessians_and_handles_edge_cases():
@@ -137,7 +140,7 @@ def test_nested_sampling_recovers_a_known_gaussian_evidence():
         return -1.0 + 2.0 * u  # Uniform(-1, 1)^2, density 1/4
 
     want = math.log(2 * math.pi * s**2) + math.log(0.25)
-    out = nested_log_evidence(log_like, transform, 2, rng=4, maxcall=50_000)
+    out = nested_log_evidence(log_like, transform, 2, rng=4, maxcall=50_000, nlive=60)
     assert out.converged
     assert abs(out.log_evidence - want) < 3 * out.error + 0.05
     assert out.samples.shape[1] == 2 and out.n_calls <= 50_000

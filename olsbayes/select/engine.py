@@ -63,9 +63,11 @@ def laplace_work(model: Model, k: int, fitted: tuple, prior,
     """Laplace evidence of K sources at the ML point ``fitted`` = (fit, params, log L, origin)
     and the reasons not to trust it."""
     t0 = time.perf_counter()
-    fit, params, ll, _ = fitted
+    fit, params, ll, origin = fitted
     log_z, fisher, _ = model_laplace(model, params, ll, prior)
     reasons, stats = laplace_trust(model, params, fisher, thresholds=dict(thresholds or {}))
+    if origin.endswith("(not converged)"):
+        reasons = reasons + ("ML optimiser did not meet its stopping rule",)
     log_z = float(log_z)
     if np.isfinite(log_z) and log_z > ll:
         reasons = reasons + ("Laplace exceeds the likelihood maximum (Gaussian wider "

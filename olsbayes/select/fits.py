@@ -59,15 +59,19 @@ def fit_all(
 ) -> dict[int, tuple[object, np.ndarray, float, str]]:
     """ML fits for K = 1..k_max: ``{K: (MLResult, params, log L, origin)}``.
 
-    ``origin`` is ``"fit_ml"``, ``"from K+1"`` or ``"from K-1"`` (which repair won).
+    ``origin`` is ``"fit_ml"``, ``"from K+1"`` or ``"from K-1"`` (which repair won);
+    a fit_ml result whose optimiser did not converge has origin
+    ``"fit_ml (not converged)"``.
     """
     from ..ml import fit_ml
 
     fits: dict[int, list] = {}
     for k in range(1, k_max + 1):
-        fit = fit_ml(model, data, k, rng=streams[k], **dict(fit_kwargs or {}))
+        opts = {"warn": False, **dict(fit_kwargs or {})}  # non-convergence becomes a reason
+        fit = fit_ml(model, data, k, rng=streams[k], **opts)
         x = model.canonical(np.asarray(fit.params, float))
-        fits[k] = [fit, x, float(model.log_likelihood(x, data)), "fit_ml"]
+        origin = "fit_ml" if bool(np.all(fit.converged)) else "fit_ml (not converged)"
+        fits[k] = [fit, x, float(model.log_likelihood(x, data)), origin]
     for k in range(k_max - 1, 0, -1):  # downwards: drop one source of the (K+1)-fit
         b = fits[k + 1][1].reshape(k + 1, model.n_loc + 1)
         starts = np.array([np.delete(b, i, axis=0).ravel() for i in range(k + 1)])

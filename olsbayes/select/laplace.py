@@ -23,6 +23,7 @@ import numpy as np
 from scipy.special import gammaln, log_ndtr
 
 from .._validation import finite_array, positive_float
+from ..crlb import SINGULAR_RTOL
 from ..errors import InputError
 
 __all__ = [
@@ -161,8 +162,11 @@ def support_log_mass(params: np.ndarray, sd: np.ndarray, prior) -> np.ndarray:
 
     For every non-periodic parameter with mean ``params`` and sd ``sd`` the mass
     Phi((upper - x)/sd) - Phi((lower - x)/sd) of its Gaussian inside the prior's
-    support (an intensity at its lower edge 0 keeps half).  Periodic parameters
-    contribute nothing.  Shapes: params, sd (..., P) -> (...,).
+    support (an intensity at its lower edge 0 keeps half).  A periodic parameter
+    (ring angle, longitude) whose Gaussian is wider than its period L contributes
+    log(L / (sqrt(2 pi) sd)) < 0, capping its Laplace volume at the whole prior
+    (the direction of a weak source is not localised).  Shapes: params, sd
+    (..., P) -> (...,).
     """
     lo, hi = prior.lower, prior.upper
     per = prior.periodic
@@ -170,8 +174,10 @@ def support_log_mass(params: np.ndarray, sd: np.ndarray, prior) -> np.ndarray:
         a = np.where(per, -np.inf, (lo - params) / sd)
         b = np.where(per, np.inf, (hi - params) / sd)
         # log(Phi(b) - Phi(a)) computed on the side that keeps precision
-        upper_tail = log_ndtr(b) + np.log1p(-np.exp(np.minimum(log_ndtr(a) - log_ndtr(b), 0.0)))
-    return np.sum(np.where(np.isfinite(sd), upper_tail, np.nan), axis=-1)
+        box = log_ndtr(b) + np.log1p(-np.exp(np.minimum(log_ndtr(a) - log_ndtr(b), 0.0)))
+        wide = np.minimum(0.0, np.log(hi - lo) - np.log(math.sqrt(2 * math.pi) * sd))
+        term = np.where(per, wide, box)
+    return np.sum(np.where(np.isfinite(sd), term, np.nan), axis=-1)
 
 
 def prior_precision(prior, n_grid: int = 2048) -> np.ndarray:
@@ -228,7 +234,9 @@ def model_laplace(
     if ridge:
         fisher = fisher + np.diag(prior_precision(prior))
     sign, logdet = np.linalg.slogdet(fisher)
-    ok = (sign > 0) & np.isfinite(logdet)
+    w = np.linalg.eigvalsh(fisher)
+    # singular by the same rule as olsbayes.crlb.bound_covariance
+    ok = (sign > 0) & np.isfinite(logdet) & (w[..., 0] > SINGULAR_RTOL * w[..., -1])
     safe = np.where(ok[..., None, None], fisher, np.eye(x.shape[-1]))
     cov = np.linalg.inv(safe)
     var = np.diagonal(cov, axis1=-2, axis2=-1)
