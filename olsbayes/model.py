@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from ._validation import as_rng, finite_array, positive_float
+from ._validation import as_rng, finite_array, integer, positive_float
 from .errors import InputError
 from .geometry import SensorArray, lonlat_to_unit, wrap_angle
 from .scene import Scene
@@ -132,7 +132,13 @@ class Model:
     def _as_params(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
         if isinstance(scene_or_params, Scene):
             return self.pack(scene_or_params)
-        x = np.asarray(scene_or_params, dtype=float)
+        try:
+            x = np.asarray(scene_or_params, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(
+                f"params must be a Scene or a real array of shape (..., K * {self.n_loc + 1}); "
+                f"got {type(scene_or_params).__name__}"
+            ) from None
         self.n_sources_of(x)
         return x
 
@@ -255,7 +261,14 @@ class Model:
 
         ``params`` (..., n_params) and ``data`` (..., N) broadcast over leading axes.
         """
-        data = np.asarray(data, dtype=float)
+        try:
+            data = np.asarray(data, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"data must be a real array; got {type(data).__name__}") from None
+        if data.ndim == 0 or data.shape[-1] != self.n_sensors:
+            raise InputError(
+                f"data must have last axis of length {self.n_sensors}; got shape {data.shape}"
+            )
         mu = self.response(scene_or_params)
         if _fits_into(data.shape, mu.shape):
             resid = np.subtract(data, mu, out=mu)  # in place: no second (..., N) array
@@ -278,7 +291,8 @@ class Model:
         """Noisy readings: response + N(0, sigma^2) noise, shape ``size + (N,)``."""
         gen = as_rng(rng)
         mu = self.response(scene)
-        shape = () if size is None else tuple(np.atleast_1d(size).astype(int))
+        sizes = () if size is None else (size,) if np.ndim(size) == 0 else tuple(size)
+        shape = tuple(integer("size", n, low=0) for n in sizes)
         return mu + self.sigma * gen.standard_normal(shape + mu.shape)
 
     def canonical(self, params: np.ndarray) -> np.ndarray:

@@ -85,6 +85,12 @@ API_CASES = [
     ("plate source behind", lambda: ob.Model(ob.Plate.grid(3, 3), 0.1).pack(
         ob.Scene(positions=[[0, 0, -1.0]], intensities=[1.0])), "z must be > 0"),
     ("params wrong length", lambda: MODEL.response(np.zeros(3)), "multiple of 2"),
+    ("params not numbers", lambda: MODEL.response("abc"), "real array"),
+    ("params ragged", lambda: MODEL.jacobian([[1, 2], [3]]), "real array"),
+    ("likelihood data length", lambda: MODEL.log_likelihood(np.zeros(4), np.zeros(29)),
+     "length 30"),
+    ("simulate size < 0", lambda: MODEL.simulate(GOOD, 0, size=-1), "size"),
+    ("simulate size float", lambda: MODEL.simulate(GOOD, 0, size=2.5), "size"),
     ("data wrong length", lambda: MODEL.check_data(np.zeros(29)), "length 30"),
     ("data nan", lambda: MODEL.check_data(np.full(30, np.nan)), "finite"),
     ("rng negative seed", lambda: MODEL.simulate(GOOD, -1), "seed"),
