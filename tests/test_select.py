@@ -187,3 +187,8 @@ def test_sphere_and_plate_models_are_supported():
     res = select_k(plate, plate.simulate(x, np.random.default_rng(1)), k_max=2,
                    method="laplace", rng=0)  # i_max from the data, over the default box
     assert res.best == 1
+
+
+def test_k_max_zero_is_the_closed_form_alone():
+    res = select_k(MODEL, _data(0, 0), k_max=0, method="auto", rng=0, i_max=2.0)
+    assert res.best == 0 and res.ks.tolist() == [0] and res.probabilities.tolist() == [1.0]

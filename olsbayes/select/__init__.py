@@ -1,10 +1,34 @@
 """Choosing the number of sources K: evidences, the posterior over K, escalation.
 
-:func:`select_k` returns a :class:`SelectionResult`.  Evidence estimators: the
-closed form for K = 0 (:func:`noise_log_evidence`), the Laplace approximation
-at the ML point (:func:`laplace_log_evidence`, :func:`model_laplace`, with the
-K! factor of exchangeable sources), dynesty nested sampling
-(:func:`nested_log_evidence`) and the information criteria BIC/AIC.
+:func:`select_k` returns a :class:`SelectionResult` (log Z_K +- error per K,
+p(K | data), the chosen K, per-K ML fits and diagnostics, which K were sent to
+nested sampling and why, ``table()``).
+
+Estimators
+    * K = 0 (noise only): closed form, :func:`noise_log_evidence`.
+    * Laplace at the ML point (:func:`model_laplace`): Fisher matrix, prior
+      density, log K! for the K! labelled copies of each mode of exchangeable
+      sources (ScenePrior is the unordered prior on the full space; nested
+      sampling integrates the same space, so the two estimate the same Z_K),
+      the Gaussian mass left inside the prior box (intensities >= 0), and an
+      angle volume capped at the whole circle.  Exact on linear-Gaussian
+      problems (:func:`linear_gaussian_log_evidence`).
+    * dynesty nested sampling (:func:`nested_log_evidence`): ``rslice``,
+      periodic angles, seeded Generator, always capped by ``maxcall``.
+    * BIC / AIC pseudo-evidences, and PSIS-LOO over sub-sensors
+      (:func:`loo_compare`) as a predictive cross-check.
+
+Decision
+    ``auto`` computes Laplace for every K, then runs nested sampling only for
+    the K in doubt (at most ``max_escalations``): Laplace untrusted (singular or
+    ill-conditioned Fisher matrix, sources < 2 sensor spacings apart, weak
+    sources, ML not converged) within ``decisive`` nats of the best, trusted
+    values near the decision boundary, or a neighbour of the best K without a
+    Laplace value -- but not a K above the best whose ML fit gains < ``min_gain``
+    nats (an extra source that fits noise).  The chosen K is the smallest within
+    ``tie`` nats of the most probable: on this sensor an over-complete model
+    is never decisively worse (a source split in two within one sensor spacing
+    predicts exactly the same readings), so "more sources" must be earned.
 """
 
 from .criteria import LOOResult, aic, bic, loo_compare
