@@ -190,3 +190,15 @@ def test_fit_posterior_rejects_contradictory_options(tmp_path, capsys):
     assert "one measurement" in err
     code, _, err = run_cli(capsys, "fit", "--posterior", "--max-steps", "0")
     assert_one_line_error(code, err)
+
+
+def test_import_and_help_stay_light():
+    """`import olsbayes` and `olsbayes --help` load no plotting/sampling/cluster stack."""
+    heavy = ("matplotlib", "arviz", "dask", "distributed", "emcee", "dynesty", "corner",
+             "xarray", "pandas")
+    code = ("import sys, olsbayes, olsbayes.cli; olsbayes.cli.build_parser(); "
+            f"print(','.join(m for m in {heavy!r} if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == ""
