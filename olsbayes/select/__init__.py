@@ -15,6 +15,8 @@ Estimators
       problems (:func:`linear_gaussian_log_evidence`).
     * dynesty nested sampling (:func:`nested_log_evidence`): ``rslice``,
       periodic angles, seeded Generator, always capped by ``maxcall``.
+    * one-mode importance sampling (:func:`importance_log_evidence`): a precise
+      reference for the Laplace value where the modes are apart.
     * BIC / AIC pseudo-evidences, and PSIS-LOO over sub-sensors
       (:func:`loo_compare`) as a predictive cross-check.
 
@@ -33,6 +35,7 @@ Decision
 
 from .criteria import LOOResult, aic, bic, loo_compare
 from .diagnostics import THRESHOLDS, laplace_trust, min_separation, sensor_spacing
+from .importance import importance_log_evidence
 from .laplace import (
     laplace_log_evidence,
     linear_gaussian_log_evidence,
@@ -53,6 +56,7 @@ __all__ = [
     "linear_gaussian_log_evidence",
     "model_laplace",
     "nested_log_evidence",
+    "importance_log_evidence",
     "NestedEvidence",
     "laplace_trust",
     "sensor_spacing",
