@@ -3,6 +3,7 @@
 import base64
 import json
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -59,6 +60,23 @@ def test_netcdf_round_trip(small_result, tmp_path):
     # pointwise log-likelihood sums to the total one at every draw
     total = back.sample_stats["lp"].values - back.sample_stats["log_prior"].values
     np.testing.assert_allclose(back.log_likelihood["obs"].values.sum(-1), total, rtol=1e-10)
+
+
+def test_loo_over_sub_sensors(small_result):
+    """Dark sub-sensors have constant log-likelihood: LOO adds them exactly, no k = inf."""
+    from olsbayes.posterior._arviz import loo
+
+    res, _ = small_result
+    ll = res.idata.log_likelihood["obs"].values.reshape(-1, 16)
+    dark = np.ptp(ll, axis=0) == 0
+    assert dark.any()
+    with warnings.catch_warnings():  # a genuine high-k warning may remain (near-horizon sensors)
+        warnings.simplefilter("ignore", UserWarning)
+        out = loo(res.idata, pointwise=True)
+        total = float(loo(res.idata)["elpd_loo"])
+    assert out["n_data_points"] == 16 and np.all(np.isfinite(out["pareto_k"].values))
+    np.testing.assert_allclose(out["loo_i"].values[dark], ll[0, dark])
+    assert abs(total - out["loo_i"].values.sum()) < 1e-9
 
 
 def test_corner_plot_draws_crlb_ellipses(small_result):

@@ -190,9 +190,40 @@ def from_netcdf(path: str | os.PathLike):
 
 
 def loo(idata, pointwise: bool = False):
-    """PSIS-LOO over sub-sensors (``arviz.loo``); returns arviz's ELPDData."""
+    """PSIS-LOO over sub-sensors (``arviz.loo``); returns ArviZ's ELPDData.
+
+    Sub-sensors that no source reaches in any draw have a constant pointwise
+    log-likelihood; their leave-one-out term is exact, but ArviZ's Pareto fit
+    reports k = inf (and a warning) for them.  Such columns are therefore left
+    out of the importance sampling and added back exactly: ``elpd_loo``, ``se``
+    and ``n_data_points`` cover every sub-sensor, and with ``pointwise=True``
+    their ``pareto_k`` is 0 (exact).
+    """
     az = import_arviz()
-    return az.loo(idata, pointwise=pointwise)
+    ll = idata.log_likelihood["obs"]
+    vals = ll.values.reshape(-1, ll.shape[-1])
+    const = np.ptp(vals, axis=0) <= 1e-12 * np.maximum(1.0, np.abs(vals).max(axis=0))
+    if not const.any():
+        return az.loo(idata, pointwise=pointwise)
+    if const.all():
+        raise InputError("loo: the log-likelihood does not vary over the draws")
+    sub = az.InferenceData(posterior=idata.posterior,
+                           log_likelihood=idata.log_likelihood.isel(sensor=np.flatnonzero(~const)))
+    res = az.loo(sub, pointwise=True)
+    loo_i = np.empty(vals.shape[1])
+    loo_i[~const] = res["loo_i"].values
+    loo_i[const] = vals[0, const]
+    res["elpd_loo"] = float(loo_i.sum())
+    res["se"] = float(np.sqrt(loo_i.size * np.var(loo_i)))
+    res["n_data_points"] = int(loo_i.size)
+    if not pointwise:
+        short = res.drop(["loo_i", "pareto_k"])
+        return type(res)(data=list(short.values), index=list(short.index))
+    k = np.zeros(loo_i.size)
+    k[~const] = res["pareto_k"].values
+    res["loo_i"] = ll.isel(chain=0, draw=0).copy(data=loo_i).rename("loo_i")
+    res["pareto_k"] = ll.isel(chain=0, draw=0).copy(data=k).rename("pareto_shape")
+    return res
 
 
 def waic(idata, pointwise: bool = False):
