@@ -1,42 +1,16 @@
-"""TOML configuration files: a small schema registry, strict validation, builders.
-
-A configuration file describes a sensor, a scene and (optionally) readings::
-
-    [sensor]
-    geometry = "ring"          # ring | sphere | plate | custom
-    n = 30
-    sigma = 0.01               # noise std of one sub-sensor (reading units)
-    sensitivity = "cosine"     # cosine (alias costn) | cosine_power (then p = ...)
-
-    [scene]
-    directions = [0.37, -2.7716]   # ring: rad; sphere: [[lon, lat], ...]
-    intensities = [1.0, 0.2]
-
-    [data]
-    simulate = true            # or: file = "readings.txt" (one or more rows of N readings)
-    seed = 20260123
-
-Every section is declared by a :class:`Section` of :class:`Field` objects in a
-registry; other parts of the package (``image``, ``select``, ``study``,
-``posterior`` ...) declare theirs with :func:`register_section` and then call
-:func:`load_config` with the sections their command accepts.  Unknown sections
-or keys, wrong types, non-finite or huge numbers and malformed TOML all raise
-:class:`~olsbayes.errors.ConfigError` naming the key and the accepted keys.
-"""
+"""Schema of configuration sections: fields, sections, the registry, validation."""
 
 from __future__ import annotations
 
 import math
-import os
-import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import ConfigError, OlsBayesError
+from ..errors import ConfigError
 
 __all__ = [
     "Field",
@@ -45,11 +19,11 @@ __all__ = [
     "register_section",
     "get_section",
     "registered_sections",
-    "load_config",
-    "parse_config",
-    "read_readings",
+    "validate_section",
     "MAX_ABS",
     "MAX_ELEMENTS",
+    "MAX_CONFIG_BYTES",
+    "MAX_DATA_BYTES",
 ]
 
 #: Largest magnitude accepted for any number in a configuration file.
@@ -253,7 +227,9 @@ def _check_nested(where: str, value: Any, depth: int = 0) -> None:
         elif isinstance(item, bool) or not isinstance(item, (int, float)):
             raise ConfigError(f"{where} must hold numbers only; got {_short(item)}")
         elif isinstance(item, int) and abs(item) > MAX_ABS:
-            raise ConfigError(f"{where} must have magnitudes <= {MAX_ABS:g}; got {_short(item)}")
+            raise ConfigError(
+                f"{where} must have magnitudes <= {MAX_ABS:g}; got {_short(item)}"
+            )
 
 
 def _check_array(where: str, value: Any, f: Field) -> np.ndarray:
@@ -306,7 +282,8 @@ def _check_value(section: str, key: str, value: Any, f: Field, base: Path) -> An
     return value
 
 
-def _validate_section(sec: Section, table: Any, base: Path) -> dict[str, Any]:
+def validate_section(sec: Section, table: Any, base: Path) -> dict[str, Any]:
+    """Check one TOML table against ``sec``; defaults filled in, values converted."""
     if not isinstance(table, dict):
         raise ConfigError(f"[{sec.name}] must be a table; got {_short(table)}")
     variant = None
@@ -336,212 +313,3 @@ def _validate_section(sec: Section, table: Any, base: Path) -> dict[str, Any]:
     return out
 
 
-def _apply_overrides(doc: dict[str, Any], overrides: Mapping[str, Any]) -> None:
-    for dotted, value in overrides.items():
-        parts = str(dotted).split(".")
-        if len(parts) != 2 or not all(parts):
-            raise ConfigError(f"override key must look like section.key; got {dotted!r}")
-        table = doc.setdefault(parts[0], {})
-        if not isinstance(table, dict):
-            raise ConfigError(f"override {dotted!r}: [{parts[0]}] is not a table")
-        table[parts[1]] = value
-
-
-def parse_config(
-    text: str,
-    sections: Iterable[str] | None = None,
-    *,
-    required: Iterable[str] = (),
-    source: str = "<string>",
-    base_dir: str | os.PathLike | None = None,
-    overrides: Mapping[str, Any] | None = None,
-) -> Config:
-    """Validate TOML ``text`` against the registered sections.
-
-    Parameters
-    ----------
-    text : str
-        TOML document.
-    sections : iterable of str, optional
-        Sections this caller accepts (default: every registered section).
-    required : iterable of str
-        Sections that must be present.
-    source : str
-        Name used in messages.
-    base_dir : path, optional
-        Folder for relative paths (default: the current folder).
-    overrides : mapping, optional
-        ``{"section.key": value}`` set on top of the document before validation
-        (the CLI's ``--set``); values are Python values as TOML would give them.
-    """
-    names = tuple(sections) if sections is not None else registered_sections()
-    allowed = {n: get_section(n) for n in names}
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: malformed TOML: {exc}") from None
-    except RecursionError:
-        raise ConfigError(f"{source}: malformed TOML: nested too deeply") from None
-    _apply_overrides(doc, overrides or {})
-    base = Path(base_dir) if base_dir is not None else Path(".")
-    tables: dict[str, dict[str, Any]] = {}
-    for name, table in doc.items():
-        if name not in allowed:
-            raise ConfigError(
-                f"{source}: unknown section or key {name!r}; accepted sections: "
-                f"{', '.join(f'[{n}]' for n in names) or '(none)'}"
-            )
-        try:
-            tables[name] = _validate_section(allowed[name], table, base)
-        except ConfigError as exc:
-            raise ConfigError(f"{source}: {exc}") from None
-    for name in required:
-        if name not in tables:
-            raise ConfigError(f"{source}: section [{name}] is required but missing")
-    return Config(tables=tables, source=source, base_dir=base)
-
-
-def load_config(
-    path: str | os.PathLike,
-    sections: Iterable[str] | None = None,
-    *,
-    required: Iterable[str] = (),
-    overrides: Mapping[str, Any] | None = None,
-) -> Config:
-    """Read and validate a TOML configuration file (see :func:`parse_config`).
-
-    Relative paths inside the file are resolved against the file's folder.
-    """
-    p = Path(path)
-    try:
-        size = p.stat().st_size
-        if not p.is_file():
-            raise ConfigError(f"config {str(p)!r} is not a file")
-        if size > MAX_CONFIG_BYTES:
-            raise ConfigError(f"config {str(p)!r} is {size} bytes; at most {MAX_CONFIG_BYTES}")
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"config {str(p)!r} cannot be read: {exc.strerror or exc}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise ConfigError(f"config {str(p)!r} is not UTF-8 text") from None
-    return parse_config(
-        text, sections, required=required, source=str(p), base_dir=p.resolve().parent,
-        overrides=overrides,
-    )
-
-
-def read_readings(
-    path: str | os.PathLike, n_sensors: int | None = None, name: str = "data file"
-) -> np.ndarray:
-    """Readings from a text (whitespace- or comma-separated, ``#`` comments) or .npy file.
-
-    Returns shape (N,) for one row, (T, N) for T rows of N readings each.
-    ConfigError when the file is missing, unparsable, non-finite, empty or its
-    rows do not hold ``n_sensors`` readings.
-    """
-    p = Path(path)
-    try:
-        if not p.is_file():
-            raise ConfigError(f"{name} {str(p)!r} does not exist or is not a file")
-        if p.stat().st_size > MAX_DATA_BYTES:
-            raise ConfigError(f"{name} {str(p)!r} is larger than {MAX_DATA_BYTES} bytes")
-        if p.suffix.lower() == ".npy":
-            arr = np.load(p, allow_pickle=False)
-        else:
-            text = p.read_text(encoding="utf-8")
-            rows = []
-            for line in text.splitlines():
-                line = line.split("#", 1)[0].replace(",", " ").strip()
-                if line:
-                    rows.append([float(tok) for tok in line.split()])
-            if len({len(r) for r in rows}) > 1:
-                raise ConfigError(f"{name} {str(p)!r} has rows of different lengths")
-            arr = np.array(rows, dtype=float)
-            if arr.ndim == 2 and arr.shape[0] == 1:
-                arr = arr[0]
-            elif arr.ndim == 2 and arr.shape[1] == 1 and n_sensors not in (None, 1):
-                arr = arr[:, 0]  # one reading per line
-    except OlsBayesError:
-        raise
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{name} {str(p)!r} cannot be read as numbers: {exc}") from None
-    arr = np.asarray(arr, dtype=float) if arr.dtype != object else arr
-    if arr.dtype.kind not in "fiu" or arr.ndim not in (1, 2) or arr.size == 0:
-        raise ConfigError(
-            f"{name} {str(p)!r} must hold a non-empty table of numbers; got shape {arr.shape}"
-        )
-    arr = arr.astype(float)
-    if not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{name} {str(p)!r} holds nan or inf readings")
-    if n_sensors is not None and arr.shape[-1] != n_sensors:
-        raise ConfigError(
-            f"{name} {str(p)!r} rows hold {arr.shape[-1]} readings; the sensor has "
-            f"{n_sensors} sub-sensors"
-        )
-    return arr
-
-
-# -- the foundation's sections -------------------------------------------------------
-_PI = math.pi
-register_section(Section(
-    name="sensor",
-    doc="sub-sensor array, angular sensitivity law and noise",
-    variant_key="geometry",
-    common=("sigma", "sensitivity", "p"),
-    variants={
-        "ring": ("n", "offset"),
-        "sphere": ("layout", "n", "n_lat", "n_lon", "lat_max", "lon_min", "lon_max"),
-        "plate": ("nx", "ny", "pitch"),
-        "custom": ("normals", "normals_file", "positions", "positions_file"),
-    },
-    fields={
-        "geometry": Field("str", required=True, choices=("ring", "sphere", "plate", "custom"),
-                          doc="ring, sphere, plate or custom"),
-        "sigma": Field("float", required=True, positive=True, doc="noise std of one sub-sensor"),
-        "sensitivity": Field("str", default="cosine",
-                             choices=("cosine", "costn", "cosine_power"),
-                             doc="angular law"),
-        "p": Field("float", low=1.0, high=64.0, doc="exponent of cosine_power"),
-        "n": Field("int", low=3, high=1_000_000, doc="number of sub-sensors"),
-        "offset": Field("float", default=0.0, doc="angle of the first ring normal (rad)"),
-        "layout": Field("str", default="grid", choices=("grid", "fibonacci"), doc="sphere layout"),
-        "n_lat": Field("int", low=1, high=10_000, doc="grid latitudes"),
-        "n_lon": Field("int", low=1, high=10_000, doc="grid longitudes"),
-        "lat_max": Field("float", default=_PI / 2.05, positive=True, high=_PI / 2,
-                         doc="largest grid latitude (rad)"),
-        "lon_min": Field("float", default=-_PI, low=-2 * _PI, high=2 * _PI, doc="rad"),
-        "lon_max": Field("float", default=_PI, low=-2 * _PI, high=2 * _PI, doc="rad"),
-        "nx": Field("int", low=1, high=10_000, doc="plate columns"),
-        "ny": Field("int", low=1, high=10_000, doc="plate rows"),
-        "pitch": Field("float", default=1.0, positive=True, doc="plate spacing"),
-        "normals": Field("array", ndim=(2,), doc="inline normals, shape (N, 2) or (N, 3)"),
-        "normals_file": Field("path", doc="text/.npy file of normals, one per row"),
-        "positions": Field("array", ndim=(2,), doc="inline sub-sensor positions (N, 3)"),
-        "positions_file": Field("path", doc="text/.npy file of positions (N, 3)"),
-    },
-))
-
-register_section(Section(
-    name="scene",
-    doc="point sources: directions (or positions) and intensities",
-    fields={
-        "directions": Field("array", ndim=(1, 2), doc="ring angles (K,) or (lon, lat) (K, 2)"),
-        "positions": Field("array", ndim=(2,), doc="near-source positions (K, 3)"),
-        "intensities": Field("array", required=True, ndim=(1,), doc="intensities (K,) >= 0"),
-        "angle_unit": Field("str", default="rad", choices=("rad", "deg"),
-                            doc="unit of directions"),
-    },
-))
-
-register_section(Section(
-    name="data",
-    doc="readings: a file, or a simulation of the scene",
-    fields={
-        "file": Field("path", doc="text/CSV/.npy file, one row of N readings per measurement"),
-        "simulate": Field("bool", default=False, doc="simulate readings from [scene]"),
-        "seed": Field("int", low=0, high=2**63 - 1, doc="seed of the simulation"),
-        "repeats": Field("int", default=1, low=1, high=1_000_000, doc="rows to simulate"),
-    },
-))
