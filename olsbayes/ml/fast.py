@@ -14,8 +14,8 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    shifted by fixed sign patterns of ``restart_scale`` grid steps, all refined
    in one more batched LM run.  They reach the neighbouring basins of the
    shallow false minima that the kink of the clipped cosine creates (a
-   sub-sensor ~90 deg from a source).  For K = 1 only fits that ended on a kink
-   are restarted.
+   sub-sensor ~90 deg from a source).  For K <= 2 only fits that ended on a
+   kink are restarted; for K >= 3 all (this also repairs wrong configurations).
 
 Being deterministic, a batch fit equals a loop of single fits.
 """
@@ -68,11 +68,11 @@ def _restart(
 ) -> LMOutcome:
     """Perturbed restarts around the refined optimum (all patterns in one LM run).
 
-    Every trial for K >= 2; for K = 1 only trials that ended on a kink.
+    Every trial for K >= 3; for K <= 2 only trials that ended on a kink.
     """
     k, d = patterns.shape[1:]
     rows = np.arange(out.x.shape[0])
-    if k == 1:
+    if k <= 2:
         rows = np.flatnonzero(out.stalled | _on_kink(model, out.x))
     if rows.size == 0:
         return out

@@ -122,12 +122,19 @@ def tuple_search(plan: TuplePlan, data: np.ndarray) -> np.ndarray:
     combos, a_inv = plan.combos, plan.gram_inv
     k = combos.shape[1]
     corr = data @ plan.atoms.T  # (T, Mc)
-    step = max(1, _BLOCK // max(combos.shape[0] * k, 1))
+    step = max(1, _BLOCK // max(combos.shape[0], 1))
     best = np.empty(data.shape[0], dtype=np.int64)
     for start in range(0, data.shape[0], step):
-        b = corr[start : start + step][:, combos]  # (t, C, K)
-        coef = (a_inv @ b[..., None])[..., 0]
-        score = np.einsum("tck,tck->tc", b, coef)
-        score[np.any(coef < 0, axis=-1)] = -np.inf
+        c = corr[start : start + step]
+        b = [c[:, combos[:, j]] for j in range(k)]  # K arrays (t, C)
+        score = np.zeros_like(b[0])
+        feasible = np.ones(b[0].shape, bool)
+        for i in range(k):  # coef_i = sum_j A^-1_ij b_j, elementwise over (t, C)
+            coef = a_inv[:, i, 0] * b[0]
+            for j in range(1, k):
+                coef += a_inv[:, i, j] * b[j]
+            feasible &= coef >= 0
+            score += b[i] * coef
+        score[~feasible] = -np.inf
         best[start : start + step] = np.argmax(score, axis=1)
     return plan.subset[combos[best]]
