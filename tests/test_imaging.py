@@ -281,3 +281,44 @@ def test_unseen_direction_raises():
     hemi = ob.Model(ob.Sphere.grid(3, 6, np.pi / 4, lon_range=(-0.5, 0.5)), sigma=0.01)
     with pytest.raises(InputError, match="seen by no sub-sensor"):
         image(hemi, np.zeros(18), np.array([[np.pi, 0.0]]))
+
+
+# -- Fig. 2 scene and sky maps ---------------------------------------------------
+def test_olss_scene_and_the_antipodal_rank_collapse():
+    from olsbayes.imaging.olss import fig2_sphere, olss_bitmap, olss_directions
+
+    bm = olss_bitmap()
+    assert bm.shape == (16, 19) and bm.sum() == 68
+    dirs = olss_directions("endpoints")
+    assert dirs.shape == (304, 2)
+    assert np.isclose(np.abs(dirs[:, 0]).max(), np.pi / 2)
+    assert np.isclose(np.abs(dirs[:, 1]).max(), np.pi / 3)
+    assert dirs[0, 1] > 0 > dirs[-1, 1]  # bitmap row 0 is north
+    ranks = {}
+    for conv in ("grid", "linspace"):
+        a = design_matrix(ob.Model(fig2_sphere(conv), 0.01), dirs)
+        ranks[conv] = np.linalg.matrix_rank(a)
+    # 20 distinct meridians: every sub-sensor has an antipode, costn(c) - costn(-c) = c
+    assert ranks["grid"] < ranks["linspace"] < 300
+
+
+def test_sky_maps_return_figures():
+    import matplotlib.pyplot as plt
+
+    from olsbayes.plotting import plot_image_result, plot_sky, plot_sphere_response
+
+    model = ob.Model(ob.Sphere.grid(5, 8), sigma=0.01)
+    dirs = np.array([[0.1, 0.2], [1.0, -0.3], [-2.0, 0.4]])
+    y = design_matrix(model, dirs) @ np.array([1.0, 0.0, 0.5])
+    for proj in ("mollweide", "equirectangular"):
+        fig = plot_sphere_response(model, y, projection=proj)
+        assert fig.axes
+        plt.close(fig)
+    res = image(model, y, dirs, prior="gaussian")
+    fig = plot_image_result(res, truth=[1.0, 0.0, 0.5], model=model, data=y)
+    assert len([ax for ax in fig.axes if ax.get_title()]) == 4
+    plt.close(fig)
+    with pytest.raises(InputError, match="projection"):
+        plot_sky([0.0], [0.0], [1.0], projection="hammer")
+    with pytest.raises(InputError, match="equal length"):
+        plot_sky([0.0, 1.0], [0.0], [1.0])

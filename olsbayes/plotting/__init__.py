@@ -9,9 +9,23 @@ from __future__ import annotations
 
 import importlib
 
-__all__ = ["plot_response", "plot_corner", "plot_trace"]
+__all__ = [
+    "plot_response",
+    "plot_corner",
+    "plot_trace",
+    "plot_sky",
+    "plot_sphere_response",
+    "plot_image_result",
+]
 
-_LAZY = {"plot_response": "response", "plot_corner": "corner", "plot_trace": "corner"}
+_LAZY = {
+    "plot_response": "response",
+    "plot_corner": "corner",
+    "plot_trace": "corner",
+    "plot_sky": "skymap",
+    "plot_sphere_response": "skymap",
+    "plot_image_result": "skymap",
+}
 
 
 def __getattr__(name: str):

@@ -1,0 +1,79 @@
+"""The Fig. 2 imaging scene: the "OLSS" bitmap, its source grid and sensor grids.
+
+Paper (Fig. 2): a sphere of 15 x 20 = 300 sub-sensors within +-pi longitude and
++-pi/2.05 latitude; 19 x 16 = 304 sources at known directions within +-pi/2
+longitude and +-pi/3 latitude forming "OLSS" with intensities 0/1; sigma = 0.01.
+
+Grid conventions (the paper states none, and the answer depends on them):
+
+* sources: 19 longitudes x 16 latitudes (19 columns fit four 4-pixel letters
+  with three 1-pixel gaps), either ``"endpoints"`` (linspace including the
+  range ends, spacing pi/18 and 2pi/45) or ``"centres"`` (centres of 19 x 16
+  equal cells);
+* sensors: ``"grid"`` is ``Sphere.grid(15, 20, pi/2.05)`` -- 20 distinct
+  meridians 18 deg apart (the endpoint pi = -pi is not repeated); ``"linspace"``
+  is what ``linspace(-pi, pi, 20)`` gives in Matlab -- both ends kept, so the
+  meridian at +-pi is doubled and only 19 distinct meridians remain.
+
+Why it matters: with the clipped cosine, ``g(c) - g(-c) = c``, so a sub-sensor
+and its antipode together read a *linear* function of the source's unit vector;
+with 20 (even) meridians and symmetric latitudes every sub-sensor has an
+antipode and the design matrix loses rank massively (rank 135 of 300), while
+with 19 distinct meridians no antipodal pairs exist (rank 251).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import Sphere
+
+__all__ = ["OLSS_ROWS", "olss_bitmap", "olss_directions", "fig2_sphere", "SIGMA"]
+
+SIGMA = 0.01
+
+_O = [".##."] + ["#..#"] * 9 + [".##."]
+_L = ["#..."] * 10 + ["####"]
+_S = [".###"] + ["#..."] * 4 + [".##."] + ["...#"] * 4 + ["###."]
+#: 16 rows (north at the top) of 19 columns (west at the left).
+OLSS_ROWS: tuple[str, ...] = tuple(
+    ["." * 19] * 2 + [".".join(r) for r in zip(_O, _L, _S, _S)] + ["." * 19] * 3
+)
+
+
+def olss_bitmap() -> np.ndarray:
+    """The "OLSS" bitmap, shape (16, 19), 1.0 bright / 0.0 dark, row 0 = north."""
+    return np.array([[ch == "#" for ch in row] for row in OLSS_ROWS], dtype=float)
+
+
+def olss_directions(convention: str = "endpoints") -> np.ndarray:
+    """Source directions (lon, lat) in rad, shape (304, 2), in bitmap order (row-major).
+
+    Parameters
+    ----------
+    convention : {"endpoints", "centres"}
+        Grid convention inside +-pi/2 longitude and +-pi/3 latitude.
+    """
+    if convention == "endpoints":
+        lon = np.linspace(-np.pi / 2, np.pi / 2, 19)
+        lat = np.linspace(-np.pi / 3, np.pi / 3, 16)
+    elif convention == "centres":
+        lon = -np.pi / 2 + (np.arange(19) + 0.5) * np.pi / 19
+        lat = -np.pi / 3 + (np.arange(16) + 0.5) * (2 * np.pi / 3) / 16
+    else:
+        raise InputError(f"convention must be 'endpoints' or 'centres'; got {convention!r}")
+    lat_g, lon_g = np.meshgrid(lat[::-1], lon, indexing="ij")  # row 0 = north
+    return np.column_stack([lon_g.ravel(), lat_g.ravel()])
+
+
+def fig2_sphere(convention: str = "grid") -> Sphere:
+    """The 15 x 20 sub-sensor sphere of Fig. 2 (see module notes for conventions)."""
+    if convention == "grid":
+        return Sphere.grid(15, 20, np.pi / 2.05)
+    if convention == "linspace":
+        lat = np.linspace(-np.pi / 2.05, np.pi / 2.05, 15)
+        lon = np.linspace(-np.pi, np.pi, 20)
+        lat_g, lon_g = np.meshgrid(lat, lon, indexing="ij")
+        return Sphere(lon_g.ravel(), lat_g.ravel())
+    raise InputError(f"convention must be 'grid' or 'linspace'; got {convention!r}")
