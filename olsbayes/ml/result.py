@@ -33,7 +33,9 @@ class MLResult:
         True when the local optimiser met its stopping criterion; False fits
         were also warned about with :class:`~olsbayes.errors.ConvergenceWarning`.
     n_evaluations : ndarray of int, shape () or (T,)
-        Forward-model evaluations (responses plus Jacobians) spent per fit.
+        Forward-model evaluations (responses plus Jacobians) spent by the local
+        optimiser per fit, over all starts (the fast method's grid scoring, a
+        few matrix products on precomputed atoms, is not counted).
     cov : ndarray, shape (P, P) or (T, P, P)
         Inverse Fisher information at the estimate (the CRLB evaluated at the
         estimate), rows/columns of unidentifiable parameters set to inf.
