@@ -47,6 +47,14 @@ def fails_on_cell(settings, rng):
     return {"x": rng.normal()}
 
 
+def const_one(settings, rng):
+    return {"x": 1.0}
+
+
+def const_two(settings, rng):
+    return {"x": 2.0}
+
+
 @vectorized
 def short_batch(settings, rngs):
     return {"x": np.zeros(len(rngs) - 1)}
@@ -165,6 +173,13 @@ def test_checkpoint_from_other_settings_is_refused(tmp_path):
     with pytest.raises(InputError, match="grid"):
         run_study(noise_check, {**GRID, "sigma": [0.01, 0.2]}, 24, executor="serial", rng=7,
                   checkpoint=ckpt, progress=False)
+    # same name, edited body: the checkpoint's results came from other code
+    edited = tmp_path / "e.ckpt"
+    run_study(const_one, {}, 2, executor="serial", rng=1, checkpoint=edited, progress=False)
+    const_two.__qualname__ = const_one.__qualname__
+    with pytest.raises(InputError, match="trial_code"):
+        run_study(const_two, {}, 2, executor="serial", rng=1, checkpoint=edited,
+                  progress=False)
     junk = tmp_path / "junk.ckpt"
     junk.write_bytes(b"not a checkpoint")
     with pytest.raises(InputError, match="not an olsbayes study checkpoint"):
@@ -195,7 +210,7 @@ SCRIPT = textwrap.dedent(
     if __name__ == "__main__":
         ckpt = None if sys.argv[1] == "-" else sys.argv[1]
         run_study(slow_trial, {"sigma": [0.01, 0.1], "n_sensors": [8, 16]}, 30,
-                  executor="processes", workers=2, chunk_size=3, rng=5, checkpoint=ckpt,
+                  executor=sys.argv[3], workers=2, chunk_size=3, rng=5, checkpoint=ckpt,
                   out=sys.argv[2], progress=False)
     """
 )
@@ -215,8 +230,8 @@ def test_study_killed_with_sigkill_resumes_without_loss_or_duplicates(tmp_path):
     script.write_text(SCRIPT)
     ckpt, out = tmp_path / "s.ckpt", tmp_path / "s.nc"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    proc = subprocess.Popen([sys.executable, str(script), str(ckpt), str(out)], env=env,
-                            start_new_session=True)
+    proc = subprocess.Popen([sys.executable, str(script), str(ckpt), str(out), "processes"],
+                            env=env, start_new_session=True)
     try:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and proc.poll() is None:
@@ -229,7 +244,9 @@ def test_study_killed_with_sigkill_resumes_without_loss_or_duplicates(tmp_path):
     partial = _count_trials(ckpt)
     assert proc.returncode == -signal.SIGKILL and not out.exists()
     assert 0 < partial.sum() < 120 and partial.max() == 1
-    subprocess.run([sys.executable, str(script), str(ckpt), str(out)], env=env, check=True)
+    # the same command resumes (here in-process: the executor does not change the numbers)
+    subprocess.run([sys.executable, str(script), str(ckpt), str(out), "serial"], env=env,
+                   check=True)
     counts = _count_trials(ckpt)
     assert np.all(counts == 1)  # every trial exactly once: none lost, none duplicated
     resumed = xr.load_dataset(out)

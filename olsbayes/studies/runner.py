@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 import pickle
 import sys
+import types
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -36,9 +38,27 @@ def _package_version() -> str:
     return __version__
 
 
+def _code_hash(trial: Callable) -> str:
+    """Hash of the trial function's own bytecode and constants (not of its callees)."""
+    code = getattr(trial, "__code__", None)
+    if code is None:
+        return ""
+    h = hashlib.sha256()
+
+    def feed(c: types.CodeType) -> None:
+        h.update(c.co_code)
+        h.update(repr(c.co_names).encode())
+        for const in c.co_consts:  # nested functions: their code, not their address
+            feed(const) if isinstance(const, types.CodeType) else h.update(repr(const).encode())
+
+    feed(code)
+    return h.hexdigest()[:16]
+
+
 def _fingerprint(trial: Callable, grid: Grid, fixed: dict, n_trials: int, entropy: int) -> dict:
     return {
         "trial": trial_name(trial),
+        "trial_code": _code_hash(trial),
         "vectorized": is_vectorized(trial),
         "grid": grid.to_json(),
         "fixed": fixed,
