@@ -84,11 +84,14 @@ def ring_truth(model: Model, settings: dict, rng: np.random.Generator) -> np.nda
 
     The first source is uniform on the circle -- or, with ``kink = True``, exactly
     90 deg from a random sub-sensor (on the kink of the clipped cosine) -- and
-    source k sits ``k * separation`` rad further on (default 2 pi / K, evenly
-    spread); all have intensity ``intensity`` (default 1).
+    source k sits ``k * separation`` rad further on (default 2 pi / ``slots``,
+    ``slots`` default K: evenly spread); all have intensity ``intensity`` (default 1).
+    Note: three equal sources evenly spread are nearly unidentifiable under the
+    clipped cosine -- only its Fourier harmonics 0, 6, 12, ... survive the sum --
+    so use e.g. ``slots = 4`` for a generic three-source scene.
     """
     k = int(settings.get("n_sources", 1))
-    sep = float(settings.get("separation", 2 * np.pi / k))
+    sep = float(settings.get("separation", 2 * np.pi / int(settings.get("slots", k))))
     if settings.get("kink", False):
         normals = model.array.normals
         j = int(rng.integers(model.n_sensors))
