@@ -153,6 +153,22 @@ def test_exact_hmc_matches_2d_quadrature(singular):
     assert 0.3 < run.acceptance <= 1.0
 
 
+def test_gibbs_with_pair_moves_matches_2d_quadrature():
+    # two strongly confused sources: their difference is barely measured
+    a = np.array([[1.0, 0.95], [0.9, 1.0], [0.5, 0.45]])
+    y, sigma = np.array([0.9, 0.85, 0.45]), 0.05
+    q, b = a.T @ a / sigma**2, a.T @ y / sigma**2
+    mean, cov = _box_moments_2d(q, b, np.zeros(2), np.ones(2))
+    run = gibbs_intensities(a, y, sigma, 1.0, np.full((8, 2), 0.5), 2000,
+                            np.random.default_rng(11), n_burn=20, pairs=np.array([[0, 1]]))
+    x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
+    se = _batch_se(x.mean(axis=1))
+    np.testing.assert_array_less(np.abs(x.reshape(-1, 2).mean(axis=0) - mean), 5 * se)
+    se2 = _batch_se(((x - mean) ** 2).mean(axis=1))
+    d2 = ((x - mean) ** 2).reshape(-1, 2).mean(axis=0)
+    np.testing.assert_array_less(np.abs(d2 - np.diag(cov)), 5 * se2)
+
+
 def test_exact_hmc_1d_matches_scipy_truncnorm():
     m, s = 0.3, 0.5
     run = sample_truncated_gaussian(
@@ -167,14 +183,15 @@ def test_exact_hmc_1d_matches_scipy_truncnorm():
     assert abs(np.mean((x - ref.mean()) ** 2) - ref.var()) < 5 * se2
 
 
-def test_spike_and_slab_gibbs_matches_brute_force():
+@pytest.mark.parametrize("pairs", [None, np.array([[0, 1]])])
+def test_spike_and_slab_gibbs_matches_brute_force(pairs):
     # Two intensities; the posterior mixes four spike/slab configurations.
     a = np.array([[1.0, 0.4], [0.3, 1.0], [0.5, 0.5]])
     y = np.array([0.55, 0.2, 0.35])
     sigma, i_max = 0.2, 1.0
     w = 0.3  # fixed by a very tight Beta hyperprior
     run = gibbs_intensities(a, y, sigma, i_max, np.zeros((8, 2)), 3000, np.random.default_rng(4),
-                            n_burn=50, spike=True, w_prior=(3e6, 7e6))
+                            n_burn=50, spike=True, w_prior=(3e6, 7e6), pairs=pairs)
 
     def lik(x1, x2):
         return np.exp(-0.5 * np.sum((y - a @ np.array([x1, x2])) ** 2) / sigma**2)
@@ -223,7 +240,7 @@ def test_bounded_image_on_a_well_posed_ring():
     truth = np.array([0.9, 0.0, 0.4])
     noise = model.sigma * np.random.default_rng(9).standard_normal(30)
     y = design_matrix(model, dirs) @ truth + noise
-    res = image(model, y, dirs, prior="bounded", rng=1, n_samples=400, n_burn=50)
+    res = image(model, y, dirs, prior="bounded", rng=1, n_samples=400, n_burn=50, sampler="hmc")
     assert res.rank == 3 and res.sampler == "hmc" and res.samples.shape == (4, 400, 3)
     assert res.rhat < 1.05
     assert np.all((res.samples >= 0) & (res.samples <= 1))

@@ -69,6 +69,19 @@ def _site(x, r, k, a_k, norm2, sigma, i_max, log_w, log_1mw, spike, rng):
     x[:, k] = new
 
 
+def _pair(x, r, k, j, d_kl, norm2, sigma, i_max, spike, rng):
+    """Exact move along e_k - e_j (intensity traded between two sources), all chains."""
+    t_lo = np.maximum(-x[:, k], x[:, j] - i_max)
+    t_hi = np.minimum(i_max - x[:, k], x[:, j])
+    m = (r @ d_kl) / norm2
+    t = truncnorm_1d(m, sigma / np.sqrt(norm2), t_lo, t_hi, rng)
+    if spike:  # only sources in the slab trade intensity; the spike stays exactly 0
+        t = np.where((x[:, k] > 0) & (x[:, j] > 0), t, 0.0)
+    r -= np.outer(t, d_kl)
+    x[:, k] = np.clip(x[:, k] + t, 0.0, i_max)
+    x[:, j] = np.clip(x[:, j] - t, 0.0, i_max)
+
+
 def gibbs_intensities(
     a: np.ndarray,
     y: np.ndarray,
@@ -82,6 +95,7 @@ def gibbs_intensities(
     spike: bool = False,
     w_prior: tuple[float, float] = (1.0, 1.0),
     thin: int = 1,
+    pairs: np.ndarray | None = None,
 ) -> GibbsSamples:
     """Run the single-site Gibbs sampler (random scan order per sweep).
 
@@ -102,6 +116,10 @@ def gibbs_intensities(
         Add the point mass at 0 with weight 1 - w (``"sparse"`` prior).
     w_prior : (float, float)
         Beta hyperprior of w.
+    pairs : ndarray of int, shape (P, 2), optional
+        Source pairs (k, l) that also get an exact move along ``e_k - e_l`` each
+        sweep -- neighbours whose difference the array barely sees, the slow
+        directions of single-site Gibbs.  Only pairs with distinct columns.
     """
     x = np.array(x0, dtype=float)
     c, k = x.shape
@@ -111,11 +129,18 @@ def gibbs_intensities(
     w = np.full(c, 0.5) if spike else np.ones(c)
     out = np.empty((c, n_samples, k))
     w_out = np.empty((c, n_samples))
+    pairs = np.zeros((0, 2), dtype=int) if pairs is None else np.asarray(pairs, dtype=int)
+    d_pairs = cols[pairs[:, 0]] - cols[pairs[:, 1]]
+    n_pairs = np.einsum("pn,pn->p", d_pairs, d_pairs)
     for sweep in range(n_burn + n_samples * thin):
         log_w = np.log(w)
         log_1mw = np.log1p(-w) if spike else None
         for j in rng.permutation(k):
             _site(x, r, j, cols[j], norm2[j], sigma, i_max, log_w, log_1mw, spike, rng)
+        for p in rng.permutation(pairs.shape[0]):
+            if n_pairs[p] > 0:
+                _pair(x, r, pairs[p, 0], pairs[p, 1], d_pairs[p], n_pairs[p], sigma, i_max,
+                      spike, rng)
         if spike:
             n_on = np.count_nonzero(x, axis=1)
             w = rng.beta(w_prior[0] + n_on, w_prior[1] + k - n_on)

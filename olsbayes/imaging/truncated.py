@@ -72,7 +72,8 @@ def truncnorm_1d(
     log_lo, log_hi = log_ndtr(lo), log_ndtr(hi)
     u = rng.random(mean.shape)
     # log(Phi(lo) + u (Phi(hi) - Phi(lo))) in log space (Phi(hi) >= Phi(lo))
-    diff = np.log1p(-np.exp(np.minimum(log_lo - log_hi, 0.0)))  # log(1 - Phi(lo)/Phi(hi))
+    with np.errstate(divide="ignore"):  # empty interval lo == hi: diff = -inf, z = lo
+        diff = np.log1p(-np.exp(np.minimum(log_lo - log_hi, 0.0)))  # log(1 - Phi(lo)/Phi(hi))
     logp = np.logaddexp(log_lo, np.log(np.maximum(u, 1e-300)) + log_hi + diff)
     z = ndtri_exp(np.minimum(logp, 0.0))
     z = np.clip(z, lo, hi)
