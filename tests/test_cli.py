@@ -202,3 +202,49 @@ def test_import_and_help_stay_light():
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == ""
+
+
+SPHERE_TOML = """[sensor]
+geometry = "sphere"
+n_lat = 15
+n_lon = 20
+sigma = 0.01
+[scene]
+directions = [[20.0, 10.0], [-100.0, -30.0]]
+angle_unit = "deg"
+intensities = [1.0, 0.5]
+[data]
+simulate = true
+seed = 3
+"""
+
+PLATE_TOML = """[sensor]
+geometry = "plate"
+nx = 8
+ny = 8
+pitch = 0.5
+sigma = 0.001
+[scene]
+positions = [[0.3, -0.2, 1.5]]
+intensities = [1.0]
+[data]
+simulate = true
+seed = 3
+"""
+
+
+@pytest.mark.parametrize("text,n_params", [(SPHERE_TOML, 6), (PLATE_TOML, 4)])
+def test_fit_and_crlb_on_sphere_and_plate(tmp_path, capsys, text, n_params):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(text)
+    code, out, _ = run_cli(capsys, "fit", str(cfg), "--json")
+    assert code == 0
+    payload = json.loads(out)
+    assert len(payload["params"]) == n_params
+    assert np.all(np.abs(payload["error_over_std"]) < 5.0)  # within 5 CRLB sd
+    code, out, _ = run_cli(capsys, "crlb", str(cfg), "--json")
+    bound = json.loads(out)["crlb"]
+    assert code == 0 and bound["resolvable"] is True
+    key = "position_std" if "plate" in text else "direction_std"
+    assert np.asarray(bound[key]).shape == (n_params // (4 if "plate" in text else 3),
+                                            3 if "plate" in text else 2)
