@@ -93,21 +93,22 @@ def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000,
     gen = as_rng(rng)
     elpd, se, pk = [], [], []
     for ev in result.evidences:
-        if ev.k == 0:
-            draws = np.zeros((n_draws, 0))
-        else:
-            cov, _, singular = bound_covariance(model.fisher(ev.params))
-            if singular.any():
-                elpd.append(np.nan), se.append(np.nan), pk.append(np.nan)
-                continue
-            draws = gen.multivariate_normal(ev.params, cov, size=n_draws, method="eigh")
-            w = model.n_loc + 1
-            draws[:, w - 1 :: w] = np.abs(draws[:, w - 1 :: w])  # reflect at I = 0
+        if ev.k == 0:  # no parameters: leave-one-out is exact
+            point = _pointwise(model, np.zeros(0), data)
+            elpd.append(float(point.sum())), se.append(float(np.sqrt(point.size * point.var())))
+            pk.append(0.0)
+            continue
+        cov, _, singular = bound_covariance(model.fisher(ev.params))
+        if singular.any():
+            elpd.append(np.nan), se.append(np.nan), pk.append(np.nan)
+            continue
+        draws = gen.multivariate_normal(ev.params, cov, size=n_draws, method="eigh")
+        w = model.n_loc + 1
+        draws[:, w - 1 :: w] = np.abs(draws[:, w - 1 :: w])  # reflect at I = 0
         point = _pointwise(model, draws, data).reshape(4, -1, data.size)
-        post = {"x": draws.reshape(4, -1, draws.shape[-1])} if ev.k else {
-            "x": np.zeros((4, point.shape[1]))}
-        idata = from_dict(posterior=post, log_likelihood={"obs": point},
-                          observed_data={"obs": data})
+        idata = from_dict(posterior={"x": draws.reshape(4, -1, draws.shape[-1])},
+                          log_likelihood={"obs": point}, observed_data={"obs": data},
+                          dims={"obs": ["sensor"]})
         with warnings.catch_warnings():  # a high Pareto k is reported in the result instead
             warnings.simplefilter("ignore", UserWarning)
             out = loo(idata, pointwise=True)
