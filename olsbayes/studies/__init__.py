@@ -2,6 +2,16 @@
 
 :func:`run_study` sends chunks of trials to an executor, checkpoints every
 finished chunk so a killed study resumes, and returns an ``xarray.Dataset``.
+
+Modules: :mod:`~olsbayes.studies.runner` (``run_study``),
+:mod:`~olsbayes.studies.executors` (serial, threads, processes, Dask, any
+Executor), :mod:`~olsbayes.studies.checkpoint` (append-only checkpoint),
+:mod:`~olsbayes.studies.seeds` (one SeedSequence per trial),
+:mod:`~olsbayes.studies.grid` (settings grids); ready-made trials in
+:mod:`~olsbayes.studies.trials` (noise checks), :mod:`~olsbayes.studies.estimators`
+(``ring_estimate``: ML / posterior / nested sampling scored against the CRLB,
+see :mod:`~olsbayes.studies.scoring`) and :mod:`~olsbayes.studies.sbc`
+(simulation-based calibration).
 """
 
 from ._work import vectorized
