@@ -190,3 +190,17 @@ def test_sphere_and_plate_models_are_supported():
 def test_k_max_zero_is_the_closed_form_alone():
     res = select_k(MODEL, _data(0, 0), k_max=0, method="auto", rng=0, i_max=2.0)
     assert res.best == 0 and res.ks.tolist() == [0] and res.probabilities.tolist() == [1.0]
+
+
+def test_ml_points_are_consistent_across_k():
+    """Nested models: max log L never falls as K grows, and the K=3 optimum of a scene
+    on which the greedy search once missed it is at least as good as the truth."""
+    x = np.array([-2.5, 1.0, 0.3, 0.7, 2.0, 0.5])
+    data = MODEL.simulate(x, np.random.default_rng(5))
+    res = select_k(MODEL, data, k_max=4, method="laplace", rng=0, i_max=2.0)
+    ll = [ev.log_likelihood for ev in res.evidences]
+    assert all(b >= a - 1e-6 for a, b in zip(ll[1:], ll[2:]))
+    assert ll[3] >= float(MODEL.log_likelihood(x, data)) - 1e-6
+    assert res.best == 3
+    assert {ev.origin for ev in res.evidences[1:]} <= {
+        "fit_ml", "fit_ml (not converged)", "from K+1", "from K-1"}

@@ -39,6 +39,7 @@ class KWork:
     seconds: float = 0.0
     fit: Any = None
     stats: Mapping[str, float] | None = None
+    origin: str = ""
 
 
 def noise_work(model: Model, data: np.ndarray) -> KWork:
@@ -77,7 +78,7 @@ def laplace_work(model: Model, k: int, fitted: tuple, prior,
     n_calls = int(np.sum(getattr(fit, "n_evaluations", 0)))
     return KWork(k, log_z, math.nan, "laplace", ll, params, laplace=log_z, reasons=reasons,
                  n_calls=n_calls, seconds=seconds + time.perf_counter() - t0, fit=fit,
-                 stats=stats)
+                 stats=stats, origin=origin)
 
 
 def scalar_log_likelihood(model: Model, data: np.ndarray):
@@ -135,9 +136,9 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior,
 def information_criterion(model: Model, k: int, fitted: tuple, method: str,
                           seconds: float = 0.0) -> KWork:
     """Pseudo-evidence -BIC/2 = log L - (P/2) log N, or -AIC/2 = log L - P."""
-    fit, params, ll, _ = fitted
+    fit, params, ll, origin = fitted
     p = params.size
     crit = bic(ll, p, model.n_sensors) if method == "bic" else aic(ll, p)
     n_calls = int(np.sum(getattr(fit, "n_evaluations", 0)))
     return KWork(k, -0.5 * crit, math.nan, method, ll, params, n_calls=n_calls,
-                 seconds=seconds, fit=fit)
+                 seconds=seconds, fit=fit, origin=origin)

@@ -46,7 +46,12 @@ class KEvidence:
     seconds : float
         Wall time spent on this K (ML fit included), s.
     fit : object
-        The ML fit result (None for K = 0).
+        The :func:`olsbayes.ml.fit_ml` result (None for K = 0).  Its params differ
+        from ``params`` when the cross-K repair found a better optimum (``origin``).
+    origin : str
+        Where ``params`` come from: ``"fit_ml"``, ``"fit_ml (not converged)"``,
+        ``"from K+1"`` (a source of the (K+1)-fit dropped, then refined) or
+        ``"from K-1"`` (a source added to the (K-1)-fit, then refined).
     """
 
     k: int
@@ -62,6 +67,7 @@ class KEvidence:
     n_calls: int = 0
     seconds: float = 0.0
     fit: Any = None
+    origin: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,6 +169,7 @@ class SelectionResult:
                     "trusted": bool(ev.trusted),
                     "reasons": list(ev.reasons),
                     "params": [float(v) for v in ev.params],
+                    "origin": ev.origin,
                     "n_calls": int(ev.n_calls),
                     "seconds": float(ev.seconds),
                 }
