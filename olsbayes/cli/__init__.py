@@ -32,6 +32,7 @@ COMMANDS: tuple[str, ...] = (
     "fit",
     "study",
     "select",
+    "image",
 )
 
 

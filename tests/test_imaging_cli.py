@@ -1,0 +1,59 @@
+"""`olsbayes image`: JSON output, figure, bad input -> exit status 2."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from olsbayes.cli import main
+
+SCENE = """
+[sensor]
+geometry = "sphere"
+n_lat = 5
+n_lon = 8
+sigma = 0.01
+
+[scene]
+directions = [[0.1, 0.2], [1.0, -0.3], [-2.0, 0.4]]
+intensities = [1.0, 0.0, 0.5]
+
+[data]
+simulate = true
+seed = 3
+
+[image]
+n_samples = 40
+"""
+
+
+@pytest.fixture
+def scene(tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE)
+    return path
+
+
+def test_image_json_and_figure(scene, tmp_path, capsys):
+    png = tmp_path / "olss.png"
+    assert main(["image", str(scene), "--json", "--seed", "1", "--figure", str(png)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["prior"] == "bounded" and out["rank"] == 3 and out["nullity"] == 0
+    assert np.allclose(out["mean"], [1.0, 0.0, 0.5], atol=0.05)
+    assert out["error_sd"] < 0.05 and png.stat().st_size > 0
+
+
+def test_image_gaussian_reports_evidence(scene, capsys):
+    assert main(["image", str(scene), "--json", "--prior", "gaussian"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["log_evidence"] is not None and out["sampler"] == "closed-form"
+
+
+@pytest.mark.parametrize("extra,match", [(["--i-max", "0"], "i_max"),
+                                         (["--set", "image.bogus=1"], "bogus")])
+def test_image_bad_input_exits_2(scene, capsys, extra, match):
+    assert main(["image", str(scene), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("olsbayes: error:") and match in err and err.count("\n") == 1
