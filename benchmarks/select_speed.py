@@ -81,7 +81,7 @@ def laplace_timing(model, reps: int) -> list[dict]:
     return rows
 
 
-def nested_vs_laplace(model, seed: int, maxcall: int) -> list[dict]:
+def nested_vs_laplace(model, seed: int, maxcall: int, nlive: int | None) -> list[dict]:
     x = np.array(SCENES[2], float).ravel()
     d = model.simulate(x, np.random.default_rng([2, 0]))
     t0 = time.perf_counter()
@@ -90,7 +90,8 @@ def nested_vs_laplace(model, seed: int, maxcall: int) -> list[dict]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         t0 = time.perf_counter()
-        nes = select_k(model, d, k_max=4, method="nested", rng=seed, i_max=2.0, maxcall=maxcall)
+        nes = select_k(model, d, k_max=4, method="nested", rng=seed, i_max=2.0, maxcall=maxcall,
+                       nlive=nlive, dlogz=0.1)
         t_nes = time.perf_counter() - t0
     rows = []
     for a, b in zip(lap.evidences, nes.evidences):
@@ -135,6 +136,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--full", action="store_true", help="more repeats")
     ap.add_argument("--out", type=Path, default=Path("out/select_speed"))
+    ap.add_argument("--parts", default="123", help="which parts to run, e.g. 2")
+    ap.add_argument("--nlive", type=int, default=None,
+                    help="dynesty live points in part 2 (default max(100, 25 P))")
     ap.add_argument("--maxcall", type=int, default=150_000,
                     help="likelihood-call cap per nested run (over-complete K often hit it)")
     args = ap.parse_args(argv)
@@ -147,6 +151,20 @@ def main(argv=None) -> int:
         print(s, flush=True)
         lines.append(s)
 
+    lap, nvl = [], []
+    if "1" in args.parts:
+        lap = part1(model, reps, say)
+    if "2" in args.parts:
+        nvl = part2(model, args, say)
+    if "3" in args.parts:
+        part3(model, args, say)
+    (args.out / "select_speed.txt").write_text("\n".join(lines) + "\n")
+    (args.out / "select_speed.json").write_text(json.dumps(
+        {"laplace": lap, "nested_vs_laplace": nvl}, default=float, indent=1))
+    return 0
+
+
+def part1(model, reps, say) -> list[dict]:
     say("1. Laplace selection, K_max = 4, N = 30 (median ms per selection; target <= 50 ms)")
     lap = laplace_timing(model, reps)
     say(f"{'true K':>6} {'total':>8} {'ML fits':>8} {'evidence':>9} {'correct':>8}")
@@ -156,8 +174,13 @@ def main(argv=None) -> int:
         say(f"{r['k']:>6} {r['total_ms']:8.1f} {r['fits_ms']:8.1f} {r['evidence_ms']:9.1f} "
             f"{r['correct']:>8}")
     say()
-    say("2. Nested (dynesty rslice) vs Laplace, well-separated K=2 scene")
-    nvl = nested_vs_laplace(model, 0, args.maxcall)
+    return lap
+
+
+def part2(model, args, say) -> list[dict]:
+    say(f"2. Nested (dynesty rslice, nlive={args.nlive or 'default'}, dlogz=0.1, "
+        f"maxcall={args.maxcall}) vs Laplace, well-separated K=2 scene")
+    nvl = nested_vs_laplace(model, 0, args.maxcall, args.nlive)
     say(f"{'K':>2} {'Laplace':>12} {'nested':>12} {'+-':>6} {'diff':>7} {'IS - Lapl.':>11} "
         f"{'+-':>6} {'trusted':>7} {'calls':>7} {'s':>6}")
     for r in nvl[:-1]:
@@ -171,6 +194,10 @@ def main(argv=None) -> int:
         f" ratio {tot['ratio']:.0f}x (target >= 1000x)")
     say(f"p(K) Laplace {np.round(tot['p_laplace'], 3)}  nested {np.round(tot['p_nested'], 3)}")
     say()
+    return nvl
+
+
+def part3(model, args, say) -> None:
     say("3. Hard cases (K_max = 2): what auto escalates, and its cost vs nested for all K")
     for r in hard_cases(model, 0, args.maxcall):
         ratio = r["nested_s"] / r["auto_s"]
@@ -179,10 +206,6 @@ def main(argv=None) -> int:
         say(f"    p auto {r['p_auto']}  p nested {r['p_nested']}")
         for k, why in r["escalated"].items():
             say(f"    escalated K={k}: {why}")
-    (args.out / "select_speed.txt").write_text("\n".join(lines) + "\n")
-    (args.out / "select_speed.json").write_text(json.dumps(
-        {"laplace": lap, "nested_vs_laplace": nvl}, default=float, indent=1))
-    return 0
 
 
 if __name__ == "__main__":
