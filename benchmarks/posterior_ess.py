@@ -7,8 +7,9 @@ whether the target (R-hat < 1.01 and bulk ESS >= 1000 within 5 s) was met:
 
 * ``vectorised`` -- one log-posterior call per ensemble half-step (default);
 * ``per-walker`` -- emcee calls the log-posterior once per walker;
+* ``de-snooker`` -- vectorised, DEMove 0.8 + DESnookerMove 0.2 mixture;
 * ``stretch`` -- vectorised, emcee's affine-invariant stretch move instead of
-  the default differential-evolution mixture;
+  the default differential-evolution move;
 * ``prior-seeded`` -- vectorised, walkers drawn from the prior instead of the
   CRLB ball around the ML point (capped at ``--prior-steps``; K >= 2 chains
   from the prior often stay stuck, which is why this is never the default).
@@ -83,6 +84,7 @@ def main() -> None:
         cases = [
             ("vectorised", dict(start=centre)),
             ("per-walker", dict(start=centre, vectorize=False)),
+            ("de-snooker", dict(start=centre, moves="de-snooker")),
             ("stretch", dict(start=centre, moves="stretch")),
             ("prior-seeded", dict(start="prior", max_steps=args.prior_steps)),
         ]
