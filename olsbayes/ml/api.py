@@ -92,7 +92,7 @@ def fit_ml(
         Fast, K >= 2: number of interleaved coarse atom subsets searched
         exhaustively over K-tuples (each adds one candidate start; 0 = pursuit only).
     max_iter : int, optional
-        Iteration cap of each local optimisation (default 100 for LM, 500 for L-BFGS-B).
+        Iteration cap of each local optimisation (default 300 for LM, 500 for L-BFGS-B).
     warn : bool
         Warn :class:`~olsbayes.errors.ConvergenceWarning` when a fit did not converge.
 
@@ -116,7 +116,7 @@ def fit_ml(
     if method == "fast":
         n_restarts = integer("n_restarts", n_restarts, low=0, high=64)
         restart_scale = positive_float("restart_scale", restart_scale)
-        it = 100 if max_iter is None else integer("max_iter", max_iter, low=1)
+        it = 300 if max_iter is None else integer("max_iter", max_iter, low=1)
         n_coarse = integer("n_coarse", n_coarse, low=0, high=64)
         out = fit_fast(model, s, k, g, n_restarts=n_restarts, restart_scale=restart_scale,
                        n_coarse=n_coarse, max_iter=it)

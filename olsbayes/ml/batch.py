@@ -60,7 +60,8 @@ def _chi2(model: Model, x: np.ndarray, data: np.ndarray) -> np.ndarray:
 
 
 def _lm_step(
-    model: Model, x: np.ndarray, data: np.ndarray, lam: np.ndarray
+    model: Model, x: np.ndarray, data: np.ndarray, lam: np.ndarray,
+    frozen: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One damped Gauss–Newton proposal; returns (x_new, chi2_old, predicted decrease).
 
@@ -77,6 +78,8 @@ def _lm_step(
     is_int = np.zeros(p, bool)
     is_int[d1 - 1 :: d1] = True
     fixed = is_int & (x <= 0.0) & (g <= 0.0)
+    if frozen is not None:
+        fixed = fixed | frozen
     diag = np.diagonal(a, axis1=1, axis2=2)
     floor = 1e-9 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
     eye = np.eye(p)
@@ -94,8 +97,9 @@ def refine_batch(
     data: np.ndarray,
     x0: np.ndarray,
     *,
-    max_iter: int = 100,
+    max_iter: int = 300,
     ftol: float = 1e-10,
+    frozen: np.ndarray | None = None,
 ) -> LMOutcome:
     """Bounded Levenberg–Marquardt from ``x0`` for every trial at once.
 
@@ -110,6 +114,8 @@ def refine_batch(
     ftol : float
         Stop when an accepted step lowers chi^2 by less than ``ftol * chi^2``
         (plus a floor of 1e-30) or the predicted decrease is below it.
+    frozen : ndarray of bool, shape (T, P), optional
+        Parameters held at their starting values (e.g. a source pinned on a kink).
 
     Returns
     -------
@@ -130,7 +136,8 @@ def refine_batch(
         if act.size == 0:
             break
         xa, da = x[act], data[act]
-        x_new, chi2_old, pred = _lm_step(model, xa, da, lam[act])
+        fz = None if frozen is None else frozen[act]
+        x_new, chi2_old, pred = _lm_step(model, xa, da, lam[act], fz)
         chi2_new = _chi2(model, x_new, da)
         nev[act] += 2  # one Jacobian (with the response) + one trial response
         tiny = ftol * chi2_old + 1e-30

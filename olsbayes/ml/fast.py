@@ -16,6 +16,8 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    shallow false minima that the kink of the clipped cosine creates (a
    sub-sensor ~90 deg from a source).  For K <= 2 only fits that ended on a
    kink are restarted; for K >= 3 all (this also repairs wrong configurations).
+4. Fits that end with a source on a kink are polished with that source's
+   location held fixed (LM's one-sided Jacobian stalls there otherwise).
 
 Being deterministic, a batch fit equals a loop of single fits.
 """
@@ -62,6 +64,30 @@ def _on_kink(model: Model, x: np.ndarray, atol: float = 1e-6) -> np.ndarray:
     return np.any(kink_sources(model, x, atol=atol), axis=-1)
 
 
+def _kink_polish(model: Model, data: np.ndarray, out: LMOutcome, max_iter: int) -> LMOutcome:
+    """Re-optimise the other parameters of fits with a source pinned on a kink.
+
+    At a kink the one-sided Jacobian misleads LM, which then stops with the
+    remaining parameters not quite optimal; holding the kinked source's
+    location fixed makes the rest a smooth problem.
+    """
+    if not model.sensitivity.kink:
+        return out
+    kinked = kink_sources(model, out.x, atol=1e-6)  # (T, K)
+    rows = np.flatnonzero(kinked.any(axis=1))
+    if rows.size == 0:
+        return out
+    d1 = model.n_loc + 1
+    frozen = np.repeat(kinked[rows], d1, axis=1)
+    frozen[:, d1 - 1 :: d1] = False  # intensities stay free
+    new = refine_batch(model, data[rows], out.x[rows], max_iter=max_iter, frozen=frozen)
+    x, chi2, nev = out.x.copy(), out.chi2.copy(), out.n_evaluations.copy()
+    nev[rows] += new.n_evaluations
+    better = new.chi2 < chi2[rows]
+    x[rows[better]], chi2[rows[better]] = new.x[better], new.chi2[better]
+    return LMOutcome(x, chi2, out.converged, nev, out.stalled)
+
+
 def _restart(
     model: Model, data: np.ndarray, out: LMOutcome, delta: np.ndarray, patterns: np.ndarray,
     max_iter: int,
@@ -99,7 +125,7 @@ def fit_fast(
     n_restarts: int = 4,
     restart_scale: float = 3.0,
     n_coarse: int = 3,
-    max_iter: int = 100,
+    max_iter: int = 300,
 ) -> LMOutcome:
     """Fast ML fits of a batch ``data`` (T, N); returns the raw (T, P) outcome."""
     k, d = n_sources, model.n_loc
@@ -110,7 +136,7 @@ def fit_fast(
     if n_restarts:
         delta = restart_scale * grid_step(model, grid)
         out = _restart(model, data, out, delta, restart_patterns(k, d, n_restarts), max_iter)
-    return out
+    return _kink_polish(model, data, out, max_iter)
 
 
 def _refine_starts(

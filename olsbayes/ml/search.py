@@ -25,6 +25,8 @@ from .tuples import TUPLE_BUDGET, TuplePlan, tuple_plans, tuple_search
 __all__ = ["grid_search"]
 
 _CHUNK = 512
+#: Normalised-atom correlation above which two atoms count as one basin.
+_NEIGHBOUR = 0.95
 
 
 def _scores(g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -82,13 +84,39 @@ def _alternate(
     return idx
 
 
+def _alternatives(
+    g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, idx: np.ndarray, n_alt: int
+) -> list[np.ndarray]:
+    """Runner-up positions of each source given the others, ``K * n_alt`` sets (T, K).
+
+    For source j the conditional scores are scanned for the next-best atoms
+    outside the neighbourhood (normalised-atom correlation > ``_NEIGHBOUR``) of
+    atoms already taken -- distinct basins of a weak source, which the
+    conditional optimum on the grid may miss after refinement.
+    """
+    unit = g / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None]
+    out = []
+    for j in range(idx.shape[1]):
+        sc = _scores(g, gnorm2, s, _basis(g, np.delete(idx, j, axis=1)))
+        taken = idx[:, j]
+        for _ in range(n_alt):
+            sc[unit[taken] @ unit.T > _NEIGHBOUR] = -np.inf
+            taken = np.argmax(sc, axis=1)
+            ok = np.isfinite(sc[np.arange(sc.shape[0]), taken])
+            alt = idx.copy()
+            alt[:, j] = np.where(ok, taken, idx[:, j])
+            out.append(alt)
+    return out
+
+
 def _search_chunk(
     g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int, max_sweeps: int,
-    plans: list[TuplePlan],
+    plans: list[TuplePlan], n_alt: int,
 ) -> np.ndarray:
-    """Candidate K-atom sets (T, C, K): pursuit + alternating projection, then the
-    best tuple of each coarse subset (refined directly by LM afterwards)."""
-    cands = [_alternate(g, gnorm2, s, _pursuit(g, gnorm2, s, k), max_sweeps)]
+    """Candidate K-atom sets (T, C, K): pursuit + alternating projection, runner-up
+    positions of each source, and the best tuple of each coarse subset."""
+    base = _alternate(g, gnorm2, s, _pursuit(g, gnorm2, s, k), max_sweeps)
+    cands = [base] + _alternatives(g, gnorm2, s, base, n_alt)
     for plan in plans:
         cands.append(tuple_search(plan, s))
     return np.stack(cands, axis=1)
@@ -110,7 +138,7 @@ def _intensities(
 
 def grid_search(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
-    budget: int = TUPLE_BUDGET,
+    budget: int = TUPLE_BUDGET, n_alt: int = 2,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate K-atom explanations of every data vector.
 
@@ -128,11 +156,13 @@ def grid_search(
         K-tuple (:mod:`olsbayes.ml.tuples`) is one more candidate.
     budget : int
         Cap on the number of K-tuples per coarse subset (sets its size).
+    n_alt : int
+        Runner-up positions per source (given the others) added as candidates.
 
     Returns
     -------
     idx : ndarray of int, shape (T, C, K)
-        C = 1 + (n_coarse if K >= 2 else 0) candidate atom sets per trial.
+        C = 1 + K n_alt + (n_coarse if K >= 2 else 0) candidate atom sets per trial.
     intensity : ndarray, shape (T, C, K)
         Their least-squares intensities, clipped at 0.
     rss : ndarray, shape (T, C)
@@ -141,7 +171,7 @@ def grid_search(
     gnorm2 = np.einsum("mn,mn->m", g, g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
     parts = [
-        _search_chunk(g, gnorm2, data[i : i + _CHUNK], k, max_sweeps, plans)
+        _search_chunk(g, gnorm2, data[i : i + _CHUNK], k, max_sweeps, plans, n_alt)
         for i in range(0, data.shape[0], _CHUNK)
     ]
     idx = np.concatenate(parts, axis=0)
