@@ -196,3 +196,25 @@ def test_laplace_matches_importance_sampling_on_a_two_source_scene():
                                        n_draws=20_000, rng=1)
     assert se < 0.01
     assert abs(float(log_z) - is_z) < 5 * se + 0.005
+
+
+def test_disagreeing_laplace_and_nested_evidences_warn():
+    """A trusted Laplace value off by 10 nats must not pass silently after escalation."""
+    import dataclasses
+
+    from olsbayes.errors import EvidenceWarning
+    from olsbayes.ml import fit_ml
+    from olsbayes.select.engine import laplace_work, nested_work
+
+    model = Model(Ring(30), 0.05)
+    prior = ScenePrior(model, 1, Uniform(0.0, 2.0))
+    data = model.simulate(np.array([0.0, 1.0]), np.random.default_rng(3))
+    fit = fit_ml(model, data, 1)
+    work = laplace_work(model, 1, (fit, fit.params, float(fit.log_likelihood), "fit_ml"),
+                        prior, None)
+    assert work.reasons == ()
+    bad = dataclasses.replace(work, value=work.value + 10.0, laplace=work.laplace + 10.0)
+    with pytest.warns(EvidenceWarning, match="disagree"):
+        out = nested_work(model, data, bad, prior, np.random.default_rng(0), maxcall=30_000,
+                          nlive=50, dlogz=0.5)
+    assert out.method == "nested" and abs(out.value - work.laplace) < 3 * out.error + 0.5
