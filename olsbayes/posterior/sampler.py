@@ -142,9 +142,9 @@ def _run(sampler, z0, max_steps, check_every, tau_multiple, progress, rhat_check
 def _rhat_checker(sampler, logpost, prior, rhat_max):
     """Closure: True when the post-burn-in draws have max R-hat < rhat_max.
 
-    Draws are thinned by tau / 4 (nearly the same R-hat at a fraction of the
-    cost).  Raw draws are tried first; they are relabelled only if they fail
-    and K > 1.
+    The draws checked are those ``_assemble`` keeps (same burn-in), so a
+    converged result reports R-hat < rhat_max.  Raw draws are tried first;
+    they are relabelled only if they fail and K > 1.
     """
     from ._arviz import rhat_array
 
@@ -153,7 +153,7 @@ def _rhat_checker(sampler, logpost, prior, rhat_max):
             return True
         chain = sampler.get_chain()
         burn = min(int(np.ceil(5 * tmax)), chain.shape[0] // 2)
-        step = max(1, int(tmax // 4))
+        step = 1  # exactly the draws that will be stored (thin=1), so the verdict carries over
         x = logpost.to_params(chain[burn::step].swapaxes(0, 1))
         if _rhat_max(x, prior, rhat_array) < rhat_max:
             return True
