@@ -138,8 +138,8 @@ def image(
     x0 = _starts(mode, n_chains, hi, i_max, gen)
     if prior == "sparse" or sampler == "gibbs":
         spike = prior == "sparse"
-        if spike:
-            x0 = np.where(x0 < 1e-3 * i_max, 0.0, x0)
+        if spike:  # dim sources of the jittered mode start in the spike
+            x0 = np.where(x0 < 0.1 * i_max, 0.0, x0)
         run = gibbs_intensities(a, y, model.sigma, hi, x0, n_samples, gen, n_burn=n_burn,
                                 spike=spike, pairs=neighbour_pairs(model, loc, neighbours))
         draws, acc, used = run.samples, 1.0, "gibbs"

@@ -70,13 +70,22 @@ def _site(x, r, k, a_k, norm2, sigma, i_max, log_w, log_1mw, spike, rng):
 
 
 def _pair(x, r, k, j, d_kl, norm2, sigma, i_max, spike, rng):
-    """Exact move along e_k - e_j (intensity traded between two sources), all chains."""
+    """Exact moves trading intensity between sources k and j, for every chain.
+
+    Both in the slab: a Gibbs draw along ``e_k - e_j``.  With the spike prior and
+    exactly one of the two dark: a Metropolis swap of the two values (an
+    involution that keeps the prior, accepted on the likelihood ratio).
+    """
     t_lo = np.maximum(-x[:, k], x[:, j] - i_max)
     t_hi = np.minimum(i_max - x[:, k], x[:, j])
-    m = (r @ d_kl) / norm2
-    t = truncnorm_1d(m, sigma / np.sqrt(norm2), t_lo, t_hi, rng)
-    if spike:  # only sources in the slab trade intensity; the spike stays exactly 0
-        t = np.where((x[:, k] > 0) & (x[:, j] > 0), t, 0.0)
+    rd = r @ d_kl
+    t = truncnorm_1d(rd / norm2, sigma / np.sqrt(norm2), t_lo, t_hi, rng)
+    if spike:
+        on_k, on_j = x[:, k] > 0, x[:, j] > 0
+        swap = x[:, j] - x[:, k]
+        log_acc = (swap * rd - 0.5 * swap**2 * norm2) / sigma**2
+        ok = (on_k != on_j) & (np.log(rng.random(t.shape)) < log_acc)
+        t = np.where(on_k & on_j, t, np.where(ok, swap, 0.0))
     r -= np.outer(t, d_kl)
     x[:, k] = np.clip(x[:, k] + t, 0.0, i_max)
     x[:, j] = np.clip(x[:, j] - t, 0.0, i_max)
