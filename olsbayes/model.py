@@ -66,6 +66,9 @@ class Model:
         self.sigma = positive_float("sigma", sigma)
         self.sensitivity = get_sensitivity(sensitivity)
         self._normals_t = np.ascontiguousarray(array.normals.T)
+        self._positions_t = (
+            None if array.positions is None else np.ascontiguousarray(array.positions.T)
+        )
 
     # -- layout -----------------------------------------------------------------
     @property
@@ -190,10 +193,15 @@ class Model:
         """
         b, k = where.shape[:2]
         if self.kind == "position":
-            d = where[:, :, None, :] - self.array.positions
-            r2 = np.einsum("bkni,bkni->bkn", d, d)
-            c = np.einsum("bkni,ni->bkn", d, self.array.normals) / np.sqrt(r2)
-            return self.sensitivity.value(c) / r2
+            r2, nd = None, None
+            for i in range(3):  # component-wise: exact, no (B, K, N, 3) array
+                di = where[:, :, i, None] - self._positions_t[i]
+                ndi = di * self._normals_t[i]
+                nd = ndi if nd is None else np.add(nd, ndi, out=nd)
+                np.multiply(di, di, out=di)
+                r2 = di if r2 is None else np.add(r2, di, out=r2)
+            c = np.divide(nd, np.sqrt(r2), out=nd)
+            return np.divide(self.sensitivity.value(c), r2, out=r2)
         c = where.reshape(b * k, -1) @ self._normals_t
         return self.sensitivity.value(c).reshape(b, k, self.n_sensors)
 

@@ -77,16 +77,42 @@ class CosinePower(Sensitivity):
         self.kink = self.p == 1.0
 
     def value(self, c: np.ndarray) -> np.ndarray:
-        return np.maximum(c, 0.0) ** self.p
+        return _power(np.maximum(c, 0.0), self.p)
 
     def derivative(self, c: np.ndarray) -> np.ndarray:
         cp = np.maximum(c, 0.0)
         if self.p == 1.0:
             return (cp > 0.0).astype(float)
-        return self.p * cp ** (self.p - 1.0)
+        out = _power(cp, self.p - 1.0)
+        out *= self.p
+        return out
 
     def __repr__(self) -> str:
         return f"CosinePower(p={self.p!r})"
+
+
+def _power(x: np.ndarray, p: float) -> np.ndarray:
+    """x**p for x >= 0 and p >= 0, by repeated squaring for the integer part of p.
+
+    numpy's float ``**`` goes through exp/log (~20x a multiply); integer and
+    half-integer exponents -- the common sharper laws -- need multiplies and at
+    most one sqrt, with a relative error of a few ulp.
+    """
+    n, frac = int(p), p - int(p)
+    out, base = None, np.asarray(x, dtype=float)
+    while n:
+        if n & 1:
+            out = base.copy() if out is None else np.multiply(out, base, out=out)
+        n >>= 1
+        if n:
+            base = base * base
+    if out is None:
+        out = np.ones_like(base)
+    if frac == 0.5:
+        out *= np.sqrt(x)
+    elif frac:
+        out *= np.power(x, frac)
+    return out
 
 
 class CustomSensitivity(Sensitivity):

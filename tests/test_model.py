@@ -207,3 +207,14 @@ def test_model_rejects_bad_parameter_layout():
         model.response(np.zeros(4))
     with pytest.raises(InputError, match="'angle'"):
         Model(Ring(10), SIGMA).pack(Scene(directions=[[0.1, 0.2]], intensities=[1.0]))
+
+
+@pytest.mark.parametrize("p", [1.0, 1.5, 2.0, 3.0, 5.5, 7.0, 12.25, 64.0])
+def test_cosine_power_fast_power_matches_numpy(p):
+    """CosinePower uses repeated squaring; it must agree with ``**`` to a few ulp."""
+    law = CosinePower(p)
+    c = np.linspace(-1.0, 1.0, 2001)
+    cp = np.maximum(c, 0.0)
+    np.testing.assert_allclose(law.value(c), cp**p, rtol=1e-14, atol=0)
+    if p > 1:
+        np.testing.assert_allclose(law.derivative(c), p * cp ** (p - 1), rtol=1e-14, atol=0)
