@@ -16,6 +16,16 @@ from .errors import InputError
 __all__ = ["atomic_path", "write_text_atomic", "ensure_dir"]
 
 
+def _current_umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it; restore at once
+    os.umask(mask)
+    return mask
+
+
+#: The process umask at import, applied to files written through :func:`atomic_path`.
+_UMASK = _current_umask()
+
+
 def ensure_dir(path: str | os.PathLike, name: str = "output folder") -> Path:
     """Create ``path`` (and parents) and check it is writable; InputError if not."""
     p = Path(path)
@@ -44,6 +54,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        if tmp_path.exists():  # mkstemp makes 0600 files; give the usual umask-based mode
+            os.chmod(tmp_path, 0o666 & ~_UMASK)
         os.replace(tmp_path, target)
     finally:
         if tmp_path.exists():

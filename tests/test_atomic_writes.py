@@ -133,3 +133,13 @@ def test_atomic_replace_keeps_old_file_until_complete(tmp_path):
     assert target.read_text() == "old"
     write_text_atomic(target, "new")
     assert target.read_text() == "new" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_atomic_files_get_the_usual_permissions(tmp_path):
+    """mkstemp creates 0600 files; results must be readable like any other file."""
+    import os
+
+    umask = os.umask(0o022)
+    os.umask(umask)
+    path = write_text_atomic(tmp_path / "r.txt", "x")
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask

@@ -159,9 +159,18 @@ def _figure(res: Any, truth: np.ndarray | None, model: Any, data: np.ndarray, pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .._io import atomic_path
     from ..plotting.skymap import plot_image_result
 
+    fmt = path.suffix.lstrip(".").lower() or "png"
     fig = plot_image_result(res, truth=truth, model=model, data=data)
-    fig.savefig(path, dpi=110)
+    if fmt not in fig.canvas.get_supported_filetypes():
+        plt.close(fig)
+        raise InputError(
+            f"--figure {str(path)!r}: unknown image format {fmt!r}; use one of "
+            f"{', '.join(sorted(fig.canvas.get_supported_filetypes()))}"
+        )
+    with atomic_path(path) as tmp:  # an interrupted run leaves no half-written figure
+        fig.savefig(tmp, dpi=110, format=fmt)
     plt.close(fig)
     return path
