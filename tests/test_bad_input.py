@@ -317,6 +317,8 @@ def _cli_cases(tmp_path):
         ["select", "--maxcall", "-1"],
         ["study"],
         ["study", str(cfg_bad)],
+        ["image", "--prior", "bogus"],
+        ["image", "--figure", str(tmp_path / "sky.png")],  # sky maps need a sphere
     ]
 
 
@@ -329,7 +331,7 @@ def test_cli_bad_input_catalogue(tmp_path, capsys):
         assert code == 2, (argv, code, err)
         assert len(lines) == 1, (argv, err)
         assert "error" in lines[0] and "Traceback" not in err, (argv, err)
-    assert len(cases) >= 26
+    assert len(cases) >= 28
 
 
 def test_catalogue_size(tmp_path):
