@@ -70,6 +70,20 @@ def test_same_rng_same_chains(ring_case):
     np.testing.assert_array_equal(a.samples, b.samples)
 
 
+def test_ml_seeded_start(ring_case):
+    """start=None fits ML itself; an MLResult seeds the same ball without refitting."""
+    from olsbayes.ml import fit_ml
+
+    model, truth, data = ring_case
+    ml = fit_ml(model, data, 2)
+    res = sample(model, data, 2, start=ml, rng=3, progress=False, n_steps=200)
+    np.testing.assert_array_equal(res.start, ml.params)
+    auto = sample(model, data, 2, rng=3, progress=False, n_steps=200)
+    np.testing.assert_allclose(auto.start, ml.params, atol=1e-6)
+    with pytest.raises(InputError, match="MLResult"):
+        sample(model, data, 1, start=ml, progress=False, n_steps=10)
+
+
 def test_step_limit_warns(ring_case):
     model, truth, data = ring_case
     with pytest.warns(ConvergenceWarning, match="max_steps=200"):

@@ -61,10 +61,23 @@ def _initial(model, data, prior, start, n_walkers, gen_ml, gen_ball):
     p = prior.n_params
     if isinstance(start, str):
         if start != "prior":
-            raise InputError(f"start must be None, 'prior' or an array; got {start!r}")
+            raise InputError(
+                f"start must be None, an MLResult, 'prior' or an array; got {start!r}")
         return prior.sample(n_walkers, gen_ball), None
-    if start is None:
-        centre = ml_start(model, data, prior.n_sources, gen_ml)
+    from ..ml import MLResult
+
+    ml_point = None
+    if isinstance(start, MLResult):
+        ml_point = np.asarray(start.params, dtype=float)
+        if ml_point.shape != (model.n_params(prior.n_sources),):
+            raise InputError(
+                f"start: the MLResult must hold one fit of {prior.n_sources} source(s), "
+                f"params of shape ({model.n_params(prior.n_sources)},); got {ml_point.shape}"
+            )
+    elif start is None:
+        ml_point = ml_start(model, data, prior.n_sources, gen_ml)
+    if ml_point is not None:
+        centre = ml_point
         if prior.noise is not None:
             resid = data - model.response(centre)
             centre = np.append(centre, max(float(np.sqrt(np.mean(resid**2))), 1e-300))
@@ -209,10 +222,11 @@ def sample(
     priors : ScenePrior, optional
         Default :func:`~olsbayes.priors.default_priors` with ``data`` (a data-based
         intensity bound; pass priors explicitly for evidence work).
-    start : None, "prior", ndarray (P,) or (n_walkers, P)
+    start : None, MLResult, "prior", ndarray (P,) or (n_walkers, P)
         None: walkers start in a ball N(x_ML, CRLB(x_ML)) around the maximum-
         likelihood point from :func:`olsbayes.ml.fit_ml` (capped at the prior
-        scale where the bound is singular).  A point (P,): the same ball around it.
+        scale where the bound is singular).  An ``MLResult`` of one fit: the same
+        ball around its ``params`` (no second ML fit).  A point (P,): the same ball around it.
         An ensemble (n_walkers, P): used as is.  "prior": independent prior draws
         (not recommended for K >= 2: such walkers can stay stuck for > 2e4 steps).
     n_walkers : int, optional
