@@ -96,6 +96,10 @@ def crlb(model: Model, scene: Scene) -> CRLBResult:
     from a source, where the clipped cosine is not differentiable and the bound
     depends on the one-sided derivative used (here the dark-side one, 0).
     """
+    if not isinstance(model, Model):
+        raise InputError(f"model must be an olsbayes Model; got {type(model).__name__}")
+    if isinstance(scene, Scene) and scene.n_sources == 0:
+        raise InputError("scene must hold at least one source (n_sources >= 1); got 0")
     x = model.pack(scene)
     k = scene.n_sources
     fisher = model.fisher(x)

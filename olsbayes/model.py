@@ -116,6 +116,8 @@ class Model:
             )
         if self.kind == "position" and scene.n_sources and np.any(scene.positions[:, 2] <= 0):
             raise InputError("positions z must be > 0 (sources in front of the plate)")
+        if scene.n_sources == 0:
+            return np.zeros(0)
         return np.column_stack([scene.locations, scene.intensities]).ravel()
 
     def unpack(self, params: np.ndarray) -> Scene:

@@ -218,3 +218,12 @@ def test_cosine_power_fast_power_matches_numpy(p):
     np.testing.assert_allclose(law.value(c), cp**p, rtol=1e-14, atol=0)
     if p > 1:
         np.testing.assert_allclose(law.derivative(c), p * cp ** (p - 1), rtol=1e-14, atol=0)
+
+
+def test_empty_scene_is_the_noise_only_model():
+    """K = 0 (a candidate of select_k) packs to no parameters and reads zeros."""
+    model = Model(Ring(30), SIGMA)
+    empty = Scene(directions=[], intensities=[])
+    assert model.pack(empty).shape == (0,)
+    np.testing.assert_array_equal(model.response(empty), np.zeros(30))
+    assert model.unpack(model.pack(empty)).n_sources == 0
