@@ -204,3 +204,37 @@ def test_ml_points_are_consistent_across_k():
     assert res.best == 3
     assert {ev.origin for ev in res.evidences[1:]} <= {
         "fit_ml", "fit_ml (not converged)", "from K+1", "from K-1"}
+
+
+def _work(k, value, log_likelihood, reasons=()):
+    from olsbayes.select.engine import KWork
+
+    method = "closed-form" if k == 0 else "laplace"
+    return KWork(k, value, math.nan, method, log_likelihood, np.zeros(2 * k), reasons=reasons)
+
+
+def test_auto_skips_a_k_without_laplace_value_whose_likelihood_maximum_loses():
+    """log Z_K <= max log L_K (the prior is normalised): a neighbour of the best K with
+    no Laplace value is sent to nested sampling only if that bound can still compete."""
+    from olsbayes.select.select import _next_escalation
+
+    log_pk = np.full(4, -math.log(4))
+    outside = ("ML point outside the prior's support",)
+    works = [_work(0, -5e4, -5e4), _work(1, math.nan, -2.3e4, outside),
+             _work(2, 77.4, 120.0), _work(3, 60.0, 120.5)]
+    args = (log_pk, math.log(100), math.log(3), 3.0, set())
+    assert _next_escalation(works, *args) is None
+    works[1] = _work(1, math.nan, 85.0, outside)  # log L_max within reach of log Z_2
+    k, why = _next_escalation(works, *args)
+    assert k == 1 and why.startswith("Laplace undefined")
+
+
+def test_auto_does_not_escalate_a_hopeless_k_on_a_three_source_scene():
+    """A pair half a spacing apart plus a third source: K=1 merges the pair into one
+    source brighter than i_max (no Laplace value) but loses by ~2e4 nats -- no nested run."""
+    h = 2 * np.pi / 30
+    x = np.array([-2.2, 0.8, 0.2, 1.0, 0.2 + 0.5 * h, 1.0])
+    data = MODEL.simulate(x, np.random.default_rng(11))
+    res = select_k(MODEL, data, k_max=4, method="auto", rng=0, i_max=2.0)
+    assert not np.isfinite(res[1].laplace) and res[1].log_likelihood < res[2].log_evidence - 1e3
+    assert res.escalated == {} and res.best == 2  # the pair is one source to this sensor

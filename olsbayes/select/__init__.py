@@ -27,7 +27,8 @@ Decision
     sources, ML not converged) within ``decisive`` nats of the best, trusted
     values near the decision boundary, or a neighbour of the best K without a
     Laplace value -- but not a K above the best whose ML fit gains < ``min_gain``
-    nats (an extra source that fits noise).  The chosen K is the smallest within
+    nats (an extra source that fits noise), nor one whose likelihood maximum, an
+    upper bound on its evidence, already loses decisively.  The chosen K is the smallest within
     ``tie`` nats of the most probable: on this sensor an over-complete model
     is never decisively worse (a source split in two within one sensor spacing
     predicts exactly the same readings), so "more sources" must be earned.

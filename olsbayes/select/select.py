@@ -100,7 +100,8 @@ def _next_escalation(works: list[KWork], log_pk: np.ndarray, decisive: float, ti
     Candidates: the K within ``decisive`` nats of the most probable one whose
     Laplace value is untrusted, or trusted but within ``TRUSTED_MARGIN`` of the
     decision boundary (log odds = +-tie) of a non-decisive comparison, then a
-    neighbour of the most probable K whose Laplace value does not exist.  A K
+    neighbour of the most probable K whose Laplace value does not exist, unless
+    its likelihood maximum (an upper bound on Z_K) already loses decisively.  A K
     above the most probable one whose ML fit gains less than ``min_gain`` nats of
     log-likelihood over it is not sent: its extra source only fits noise.
     """
@@ -125,12 +126,20 @@ def _next_escalation(works: list[KWork], log_pk: np.ndarray, decisive: float, ti
             candidates.append((k, "; ".join(why)))
     for k in (top - 1, top + 1):  # a neighbour whose Laplace value does not exist
         if (0 < k < len(works) and not finite[k] and works[k].method != "nested"
-                and not _noise_only(works, k, top, min_gain)):
+                and not _noise_only(works, k, top, min_gain)
+                and _could_compete(works[k], log_pk[k], score[top] - decisive)):
             candidates.append((k, "Laplace undefined: " + "; ".join(works[k].reasons)))
     for k, why in candidates:
         if k not in done:
             return k, why
     return None
+
+
+def _could_compete(work: KWork, log_pk: float, floor: float) -> bool:
+    """Whether K's evidence can reach ``floor``: log Z_K <= max log L_K (the prior
+    integrates to 1), so a K whose likelihood maximum plus log p(K) lies below the
+    decisive floor of the most probable K loses whatever its evidence is."""
+    return bool(work.log_likelihood + log_pk >= floor)
 
 
 def _noise_only(works: list[KWork], k: int, top: int, min_gain: float) -> bool:
