@@ -79,6 +79,19 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
     assert "nested" in res.table() and json.dumps(res.to_dict())
 
 
+
+def test_a_nested_run_stopped_by_the_call_cap_is_flagged_in_the_table():
+    from olsbayes.errors import ConvergenceWarning
+
+    data = MODEL.simulate(np.array([0.3, 0.02]), np.random.default_rng(4))
+    with pytest.warns(ConvergenceWarning, match="maxcall"):
+        res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0, nlive=50,
+                       maxcall=1000)
+    assert list(res.escalated) == [1] and not res[1].trusted
+    assert res[1].reasons[-1] == "nested sampling stopped at maxcall=1000"
+    row = res.table().splitlines()[3]
+    assert row.startswith(" 1") and "weak source" in row and "stopped at maxcall=1000" in row
+
 def test_same_seed_same_result_and_k_prior_enters_the_posterior():
     data = _data(1, 0)
     a = select_k(MODEL, data, k_max=2, method="laplace", rng=5, i_max=2.0)

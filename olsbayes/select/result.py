@@ -139,7 +139,10 @@ class SelectionResult:
         for ev, p in zip(self.evidences, self.probabilities):
             err = "" if not np.isfinite(ev.error) else f"{ev.error:7.3f}"
             mark = "*" if ev.k == self.best else " "
-            note = self.escalated.get(ev.k, "; ".join(ev.reasons))
+            note = "; ".join(ev.reasons)
+            if ev.k in self.escalated:  # why escalated, then what nested sampling added
+                why = self.escalated[ev.k]
+                note = "; ".join([why] + [r for r in ev.reasons if r not in why])
             lines.append(
                 f"{ev.k:>2}{mark} {ev.log_evidence:12.3f}  {err:>7}  {ev.method:<11}  "
                 f"{p:9.4f}  {note}"
