@@ -198,3 +198,30 @@ def test_fast_reaches_the_kink_optimum_near_the_truth():
         res = minimize(f, x0, jac=True, method="L-BFGS-B",
                        bounds=[(None, None), (0, None)] * 2, options={"ftol": 1e-13})
         assert ll >= model.log_likelihood(res.x, s) - 1e-5
+
+
+def test_batched_covariance_matches_bound_covariance():
+    from olsbayes.crlb import bound_covariance
+    from olsbayes.ml.api import _covariances
+
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    x = np.array([[-1.0, 1.0, 2.0, 0.5],  # regular
+                  [0.3, 1.0, 0.3, 0.5],  # coincident sources: singular Fisher
+                  [0.3, 1.0, 2.5, 0.0]])  # a switched-off source: its angle unidentifiable
+    cov = _covariances(model, x)
+    for xi, ci in zip(x, cov):
+        ref = bound_covariance(model.fisher(xi))[0]
+        np.testing.assert_array_equal(np.isinf(ci), np.isinf(ref))
+        fin = np.isfinite(ref)
+        np.testing.assert_allclose(ci[fin], ref[fin], rtol=1e-10, atol=0)
+    assert np.isinf(cov[1]).any() and np.isinf(cov[2]).any() and np.isfinite(cov[0]).all()
+
+
+def test_largest_identifiable_n_sources_runs():
+    # K (d + 1) = N: the coarse K-tuple search has no full-rank tuple and is skipped
+    model = ob.Model(ob.Ring(30), sigma=1e-2)
+    data = model.simulate(ob.Scene(directions=[0.5, 2.5], intensities=[1.0, 0.7]), 8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        res = fit_ml(model, data, 15)
+    assert res.params.shape == (30,) and np.all(res.params[1::2] >= 0)

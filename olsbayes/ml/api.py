@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_rng, integer, positive_float
-from ..crlb import bound_covariance
+from ..crlb import SINGULAR_RTOL
 from ..errors import ConvergenceWarning, InputError
 from ..model import Model
 from .batch import LMOutcome
@@ -43,8 +43,20 @@ def _check(model: object, data: object, n_sources: object, method: object) -> tu
 
 
 def _covariances(model: Model, x: np.ndarray) -> np.ndarray:
-    fisher = model.fisher(x)  # (T, P, P)
-    return np.stack([bound_covariance(f)[0] for f in fisher])
+    """Inverse Fisher matrices (T, P, P) at the estimates x (T, P), batched.
+
+    Same rule as :func:`olsbayes.crlb.bound_covariance`, vectorised over trials:
+    pseudo-inverse over the eigenvalues above ``SINGULAR_RTOL`` times the largest,
+    rows/columns of parameters with a component in the null space set to inf.
+    """
+    w, v = np.linalg.eigh(model.fisher(x))  # (T, P), (T, P, P)
+    top = np.maximum(w[:, -1:], np.finfo(float).tiny)
+    null = w <= SINGULAR_RTOL * top
+    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
+    cov = (v * inv_w[:, None, :]) @ np.swapaxes(v, 1, 2)
+    singular = np.any((np.abs(v) > 1e-6) & null[:, None, :], axis=2)  # (T, P)
+    bad = singular[:, :, None] | singular[:, None, :]
+    return np.where(bad, np.inf, cov)
 
 
 def fit_ml(

@@ -99,6 +99,7 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET) 
         _CACHE.move_to_end(key)
         return _CACHE[key]
     plans = [_plan(g, sub, k) for sub in coarse_subsets(g, size, n_sets)]
+    plans = [p for p in plans if p.combos.shape[0]]  # no K-tuple of full rank
     _CACHE[key] = plans
     while len(_CACHE) > _CACHE_SIZE:
         _CACHE.popitem(last=False)
