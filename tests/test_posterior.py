@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from olsbayes import ConvergenceWarning, InputError, Model, Ring, Sphere
+from olsbayes import ConvergenceWarning, InputError, Model, Plate, Ring, Sphere
 from olsbayes.posterior import sample
 from olsbayes.posterior._labels import relabel
 from olsbayes.priors import HalfNormal, ScenePrior, Uniform, default_priors
@@ -24,22 +24,91 @@ def ring_result(ring_case):
     return sample(model, data, 2, start=truth, rng=1, progress=False, rhat_max=None)
 
 
+def _prior_only_pvalues(model, prior, k, rng):
+    """KS p-values of every parameter of a likelihood-free run against its prior marginal."""
+    res = sample(model, np.zeros(model.n_sensors), k, priors=prior, start="prior", rng=rng,
+                 progress=False, use_likelihood=False, n_steps=1200, relabel_sources=False)
+    draws = res.samples  # (W, D, P), raw exchangeable labels
+    step = int(np.ceil(2 * max(float(np.max(res.tau)), 1.0)))
+    # nearly independent draws: every 2 tau-th step of every 4th walker
+    return [stats.kstest(draws[::4, ::step, j].ravel(), marg.cdf).pvalue
+            for j, marg in enumerate(prior.marginals)]
+
+
 def test_prior_recovered_without_likelihood():
-    """Likelihood off: draws follow the prior (KS per parameter, then uniform p-values)."""
-    model = Model(Sphere.fibonacci(20), sigma=0.1)
-    prior = default_priors(model, 1, i_max=2.0)
-    res = sample(model, np.zeros(20), 1, priors=prior, start="prior", rng=3, progress=False,
-                 use_likelihood=False, n_steps=1200)
-    draws = res.samples  # (W, D, P)
-    tau = max(float(np.max(res.tau)), 1.0)
-    step = int(np.ceil(2 * tau))
-    pvals = []
-    for j, marg in enumerate(prior.marginals):
-        # nearly independent draws: every 2 tau-th step of a few walkers far apart
-        x = draws[::4, ::step, j].ravel()
-        pvals.append(stats.kstest(x, marg.cdf).pvalue)
-    assert min(pvals) > 1e-3 / len(pvals)
+    """Likelihood off: draws follow the prior (KS per parameter, then one uniformity test
+    over all p-values).  Covers the circle (K = 2, raw labels), the isotropic sphere, the
+    plate box, log-uniform intensities and a log-uniform noise sigma."""
+    ring = Model(Ring(12), sigma=0.1)
+    sph = Model(Sphere.fibonacci(20), sigma=0.1)
+    plate = Model(Plate.grid(3, 3), sigma=0.1)
+    cases = [
+        (ring, default_priors(ring, 2, i_max=2.0, intensity="loguniform", infer_sigma=True), 2),
+        (sph, default_priors(sph, 1, i_max=2.0), 1),
+        (plate, default_priors(plate, 1, i_max=2.0), 1),
+    ]
+    pvals = [p for i, (m, pr, k) in enumerate(cases) for p in _prior_only_pvalues(m, pr, k, i)]
+    assert len(pvals) == 5 + 3 + 4
+    assert min(pvals) > 1e-3 / len(pvals)  # Bonferroni over the parameters
     assert stats.kstest(pvals, "uniform").pvalue > 1e-3
+
+
+def test_sigma_inferred_matches_exact_marginal():
+    """Noise sd inferred under a log-uniform prior.  At high SNR the model is linear near the
+    optimum, so integrating out the P location/intensity parameters gives
+    p(sigma | d) ~ sigma^-(N-P+1) exp(-S/(2 sigma^2)), S the residual sum of squares at the
+    ML point: 1/sigma^2 ~ Gamma((N-P)/2, rate S/2).  Mean and sd of sigma must match within
+    3 Monte Carlo standard errors; the sd exceeds the CRLB sigma/sqrt(2N) by the known
+    factor (P parameters are estimated too), so crlb_check does not flag it."""
+    from scipy.special import gammaln
+
+    from olsbayes.ml import fit_ml
+
+    model = Model(Ring(30), sigma=0.01)
+    data = model.simulate(np.array([1.0, 1.0]), rng=20)  # 3.3 deg from a horizon: no kink
+    ml = fit_ml(model, data, 1)
+    a = (model.n_sensors - 2) / 2
+    b = float(np.sum((data - model.response(ml.params)) ** 2)) / 2
+    mean = np.sqrt(b) * np.exp(gammaln(a - 0.5) - gammaln(a))
+    sd = np.sqrt(b / (a - 1) - mean**2)
+    prior = default_priors(model, 1, i_max=2.0, infer_sigma=True)
+    res = sample(model, data, 1, priors=prior, start=ml, rng=0, progress=False)
+    assert res.converged and res.names[-1] == "sigma"
+    row = res.summary().loc["sigma"]
+    assert abs(row["mean"] - mean) < 3 * row["mcse_mean"]
+    assert abs(row["sd"] - sd) < 3 * row["mcse_sd"]
+    check = res.crlb_check()
+    expected = np.sqrt(2 * model.n_sensors) * sd / mean  # sd over CRLB at the posterior mean
+    assert abs(check.ratio[-1] - expected) < 3 * check.mc_error[-1] + 1e-3
+    assert check.ok, check.to_frame()
+    # log-likelihood per sub-sensor uses each draw's own sigma
+    ll = res.idata.log_likelihood["obs"].values.sum(-1)
+    lp = res.idata.sample_stats["lp"].values - res.idata.sample_stats["log_prior"].values
+    np.testing.assert_allclose(ll, lp, rtol=1e-10)
+
+
+def test_crlb_check_flags_low_snr_with_reasons():
+    """Low SNR: the direction's posterior is much wider than the CRLB, flagged with reasons."""
+    model = Model(Ring(16), sigma=0.5)
+    truth = np.array([1.0, 0.5])
+    data = model.simulate(truth, rng=2)
+    prior = default_priors(model, 1, i_max=3.0)
+    res = sample(model, data, 1, priors=prior, start=truth, rng=1, progress=False)
+    check = res.crlb_check()
+    assert not check.ok
+    assert check.flagged[0] and check.ratio[0] > 1.2 + 3 * check.mc_error[0]
+    assert "low SNR" in check.reasons[0] and "prior-dominated" in check.reasons[0]
+    frame = check.to_frame()
+    assert list(frame.columns) == ["posterior_sd", "crlb_sd", "ratio", "mc_error", "flagged",
+                                   "reason"]
+
+
+def test_short_run_has_no_arviz_shape_warning(ring_case):
+    """More walkers than stored draws is legitimate: no ArviZ shape warning (-> error here)."""
+    model, truth, data = ring_case
+    res = sample(model, data, 1, start=truth[:2], rng=0, progress=False, n_steps=40)
+    assert res.samples.shape[0] > res.samples.shape[1]
+    assert np.all(np.isfinite(res.summary()["sd"]))
 
 
 def test_high_snr_posterior_width_matches_crlb(ring_result):

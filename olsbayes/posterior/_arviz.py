@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +46,19 @@ def import_arviz():
         warnings.simplefilter("ignore", FutureWarning)
         import arviz as az
     return az
+
+
+@contextmanager
+def _known_shapes() -> Iterator[None]:
+    """Silence ArviZ's shape guess "More chains (W) than draws (D)".
+
+    Arrays handed to ArviZ here are (chain, draw, ...) by construction; a short
+    run with more walkers than stored draws is legitimate, not a transposition.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"More chains \(\d+\) than draws",
+                                category=UserWarning)
+        yield
 
 
 def split_names(names: list[str]) -> list[tuple[str, int | None]]:
@@ -114,18 +129,19 @@ def to_inference_data(
     dims.update({"obs": ["sensor"], "normals": ["sensor", "axis"],
                  "positions": ["sensor", "axis"]})
     coords = {"source": np.arange(k), "sensor": np.arange(data.shape[-1])}
-    return az.from_dict(
-        posterior=post,
-        sample_stats={"lp": log_posterior, "log_prior": log_prior,
-                      "acceptance_rate": accepted.astype(float)},
-        log_likelihood={"obs": pointwise},
-        observed_data={"obs": data},
-        constant_data=constants,
-        prior=None if prior_draws is None else _by_variable(prior_draws, names),
-        coords=coords,
-        dims=dims,
-        attrs=attrs,
-    )
+    with _known_shapes():
+        return az.from_dict(
+            posterior=post,
+            sample_stats={"lp": log_posterior, "log_prior": log_prior,
+                          "acceptance_rate": accepted.astype(float)},
+            log_likelihood={"obs": pointwise},
+            observed_data={"obs": data},
+            constant_data=constants,
+            prior=None if prior_draws is None else _by_variable(prior_draws, names),
+            coords=coords,
+            dims=dims,
+            attrs=attrs,
+        )
 
 
 def posterior_array(idata, names: list[str]) -> np.ndarray:
@@ -146,15 +162,17 @@ def summary_frame(draws: np.ndarray, names: list[str], hdi_prob: float = 0.94):
     az = import_arviz()
     post = _by_variable(np.asarray(draws, dtype=float), names)
     dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
-    idata = az.from_dict(posterior=post, dims=dims)
-    frame = az.summary(idata, hdi_prob=hdi_prob, round_to="none")
+    with _known_shapes():
+        idata = az.from_dict(posterior=post, dims=dims)
+        frame = az.summary(idata, hdi_prob=hdi_prob, round_to="none")
     return frame.loc[list(names)]
 
 
 def from_dict(**groups):
     """``arviz.from_dict`` (for other modules building InferenceData)."""
     az = import_arviz()
-    return az.from_dict(**groups)
+    with _known_shapes():
+        return az.from_dict(**groups)
 
 
 def ess_rhat(idata) -> dict[str, np.ndarray]:
@@ -170,7 +188,8 @@ def ess_rhat(idata) -> dict[str, np.ndarray]:
 def rhat_array(draws: np.ndarray) -> np.ndarray:
     """Rank-normalised split R-hat of (chain, draw, P) draws, shape (P,)."""
     az = import_arviz()
-    ds = az.convert_to_dataset(np.asarray(draws, dtype=float))
+    with _known_shapes():
+        ds = az.convert_to_dataset(np.asarray(draws, dtype=float))
     return np.asarray(az.rhat(ds)["x"].values, dtype=float)
 
 

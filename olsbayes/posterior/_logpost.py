@@ -5,7 +5,15 @@ Periodic coordinates (ring angles, sphere longitudes) are sampled in a window
 is ``z + c``.  The shift puts the window's edge (the cut of the circle) in the
 largest gap between the sources, so a source near +-pi is sampled far from
 any boundary, while the density on the window is exactly the density on the
-circle (a translation, Jacobian 1).  Non-periodic coordinates are unchanged.
+circle (a translation, Jacobian 1).
+
+Coordinates with a :class:`~olsbayes.priors.LogUniform` prior (an inferred noise
+sigma, log-uniform intensities) are sampled as ``z = log x``, where that prior
+is flat: a support spanning decades is then explored by the ensemble's linear
+moves in a few steps, while in ``x`` a walker near the lower end proposes
+jumps of the size of the upper end and almost never moves.  The sampler's
+density carries the Jacobian ``log |dx/dz| = z``; :meth:`LogPosterior.jacobian`
+converts it back to the density of the parameters.  Other coordinates are unchanged.
 """
 
 from __future__ import annotations
@@ -13,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import wrap_angle
-from ..priors import ScenePrior
+from ..priors import LogUniform, ScenePrior
 
 __all__ = ["LogPosterior", "largest_gap_cut", "circular_mean"]
 
@@ -49,7 +57,8 @@ class LogPosterior:
     prior : ScenePrior
     shift : ndarray (P,)
         Sampler coordinates are ``z = x - shift`` (non-zero only at periodic
-        parameters); periodic z must lie in (-pi, pi].
+        parameters); periodic z must lie in (-pi, pi].  Coordinates with a
+        log-uniform prior are ``z = log x`` instead (their shift must be 0).
     use_likelihood : bool
         False samples the prior (used to test the sampler).
     """
@@ -64,20 +73,43 @@ class LogPosterior:
         self.use_likelihood = use_likelihood
         self.n_model = model.n_params(prior.n_sources)
         self.n_calls = 0
+        self.log_scale = np.array([isinstance(m, LogUniform) for m in prior.marginals],
+                                  dtype=bool)
+        self._any_log = bool(self.log_scale.any())
         # support in sampler coordinates: the window (-pi, pi] for periodic ones
-        self._lo = np.where(self.periodic, np.nextafter(-np.pi, 0.0), prior.lower)
-        self._hi = np.where(self.periodic, np.pi, prior.upper)
+        lo = np.where(self.periodic, np.nextafter(-np.pi, 0.0), prior.lower)
+        hi = np.where(self.periodic, np.pi, prior.upper)
+        with np.errstate(divide="ignore"):
+            self._lo = np.where(self.log_scale, np.log(np.maximum(lo, 0.0)), lo)
+            self._hi = np.where(self.log_scale, np.log(np.maximum(hi, 0.0)), hi)
+
+    def _x_of(self, z: np.ndarray) -> np.ndarray:
+        """Parameters of sampler coordinates (angles not wrapped)."""
+        x = z + self.shift
+        if self._any_log:
+            x[..., self.log_scale] = np.exp(z[..., self.log_scale])
+        return x
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """``log |dx/dz|``, shape (...,): sampler log density minus the parameters' one."""
+        z = np.asarray(z, dtype=float)
+        return np.sum(z[..., self.log_scale], axis=-1)
 
     def to_params(self, z: np.ndarray) -> np.ndarray:
         """Model parameters (angles wrapped to (-pi, pi]) of sampler coordinates."""
-        x = np.asarray(z, dtype=float) + self.shift
+        x = self._x_of(np.asarray(z, dtype=float))
         x[..., self.periodic] = wrap_angle(x[..., self.periodic])
+        if self._any_log:  # exp(log(upper)) may round one ulp past the support
+            lo, hi = self.prior.lower[self.log_scale], self.prior.upper[self.log_scale]
+            x[..., self.log_scale] = np.clip(x[..., self.log_scale], lo, hi)
         return x
 
     def to_sampler(self, x: np.ndarray) -> np.ndarray:
         """Sampler coordinates of model parameters (inverse of :meth:`to_params`)."""
         z = np.array(x, dtype=float) - self.shift
         z[..., self.periodic] = wrap_angle(z[..., self.periodic])
+        if self._any_log:
+            z[..., self.log_scale] = np.log(np.asarray(x, dtype=float)[..., self.log_scale])
         return z
 
     def pointwise(self, x: np.ndarray) -> np.ndarray:
@@ -99,11 +131,17 @@ class LogPosterior:
             return -0.5 * chi2 / sig**2 - n * (np.log(sig) + 0.5 * _LOG_2PI)
 
     def split(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(log prior, log likelihood) at sampler coordinates, each (...,)."""
+        """(log prior, log likelihood) at sampler coordinates, each (...,).
+
+        The log prior is the density of ``z`` (Jacobian included).
+        """
         z = np.asarray(z, dtype=float)
         inside = np.all((z >= self._lo) & (z <= self._hi), axis=-1)
-        x = z + self.shift  # angles need no wrapping: the kernel and the prior are periodic
-        lp = np.where(inside, self.prior.log_prob_inside(x), -np.inf)
+        x = self._x_of(z)  # angles need no wrapping: the kernel and the prior are periodic
+        lp = self.prior.log_prob_inside(x)
+        if self._any_log:
+            lp = lp + self.jacobian(z)
+        lp = np.where(inside, lp, -np.inf)
         if not self.use_likelihood:
             return lp, np.zeros_like(lp)
         ll = np.full(lp.shape, -np.inf)

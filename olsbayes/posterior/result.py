@@ -39,7 +39,8 @@ class PosteriorResult:
     start : ndarray (P,) or None
         Centre of the starting ball (the ML point by default); None for prior starts.
     tau : ndarray (P,)
-        emcee integrated autocorrelation time (steps) of each sampler coordinate.
+        emcee integrated autocorrelation time (steps) of each sampler coordinate
+        (``log x`` for parameters with a log-uniform prior).
     n_steps, burn, thin : int
         Steps run, steps discarded as burn-in, thinning of the stored draws.
     converged : bool

@@ -172,7 +172,8 @@ def _rhat_checker(sampler, logpost, prior, rhat_max):
             return True
         if prior.n_sources < 2:
             return False
-        lpost = sampler.get_log_prob()[burn::step].T
+        z = chain[burn::step].swapaxes(0, 1)
+        lpost = sampler.get_log_prob()[burn::step].T - logpost.jacobian(z)
         x, _ = relabel(x, prior.n_sources, prior.periodic[: prior.n_loc + 1], lpost)
         return _rhat_max(x, prior, rhat_array) < rhat_max
 
@@ -346,7 +347,7 @@ def _assemble(model, data, prior, logpost, sampler, centre, burn, thin, relabel_
     moved = np.any(chain[keep] != chain[np.maximum(keep - 1, 0)], axis=-1)
     moved[keep == 0] = True
     z = chain[keep].swapaxes(0, 1)  # (W, D, P)
-    lpost = sampler.get_log_prob()[keep].T
+    lpost = sampler.get_log_prob()[keep].T - logpost.jacobian(z)  # density of x, not z
     x = logpost.to_params(z)
     w = prior.n_loc + 1
     periodic_loc = prior.periodic[:w] if prior.n_sources else np.zeros(w, bool)
