@@ -26,7 +26,7 @@ import numpy as np
 from ..geometry import wrap_angle
 from ._logpost import circular_mean, largest_gap_cut
 
-__all__ = ["relabel", "reference_order"]
+__all__ = ["relabel", "reference_order", "dominant_permutation", "block_index"]
 
 
 def _diff(a: np.ndarray, b: np.ndarray, periodic: np.ndarray) -> np.ndarray:
@@ -127,3 +127,23 @@ def relabel(
     out = flat.copy()
     out[:, : k * w] = np.take_along_axis(blocks, perm[:, :, None], axis=1).reshape(-1, k * w)
     return out.reshape(x.shape), perm.reshape(lead + (k,))
+
+
+def dominant_permutation(perms: np.ndarray) -> tuple[np.ndarray, float]:
+    """The most common permutation (K,) of :func:`relabel`'s ``perms`` (..., K), and the
+    fraction of draws that use another one (the label-switch fraction)."""
+    flat = perms.reshape(-1, perms.shape[-1])
+    if flat.shape[0] == 0:
+        return np.arange(perms.shape[-1]), 0.0
+    uniq, counts = np.unique(flat, axis=0, return_counts=True)
+    best = int(np.argmax(counts))
+    return uniq[best], float(1.0 - counts[best] / flat.shape[0])
+
+
+def block_index(perm: np.ndarray, w: int, n_params: int) -> np.ndarray:
+    """Flat index (P,) taking parameters from source ``perm[j]`` into label j's block of
+    w coordinates; trailing non-source parameters (``sigma``) stay in place."""
+    k = len(perm)
+    idx = np.arange(n_params)
+    idx[: k * w] = (np.asarray(perm)[:, None] * w + np.arange(w)).ravel()
+    return idx

@@ -40,14 +40,17 @@ class PosteriorResult:
         Centre of the starting ball (the ML point by default); None for prior starts.
     tau : ndarray (P,)
         emcee integrated autocorrelation time (steps) of each sampler coordinate
-        (``log x`` for parameters with a log-uniform prior).
+        (``log x`` for parameters with a log-uniform prior), listed under the
+        relabelled parameter it mostly supplies (the dominant relabelling
+        permutation), so it lines up with ``names`` and ``summary()``.
     n_steps, burn, thin : int
         Steps run, steps discarded as burn-in, thinning of the stored draws.
     converged : bool
         Whether ``n_steps >= tau_multiple * max(tau)`` held before the step limit.
     acceptance_fraction : ndarray (n_walkers,)
     switch_fraction : float
-        Fraction of stored draws whose sources the relabelling permuted.
+        Fraction of stored draws whose relabelling permutation differs from the
+        most common one (0 when the raw labels never swapped).
     elapsed : float
         Wall time of the sampling (s).
     n_evaluations : int

@@ -13,7 +13,7 @@ from ..errors import ConvergenceWarning, InputError
 from ..geometry import wrap_angle
 from ..model import Model
 from ..priors import ScenePrior, default_priors
-from ._labels import relabel
+from ._labels import block_index, dominant_permutation, relabel
 from ._logpost import LogPosterior, circular_mean, largest_gap_cut
 from ._start import ball_covariance, initial_ensemble, ml_start
 from .result import PosteriorResult
@@ -354,7 +354,8 @@ def _assemble(model, data, prior, logpost, sampler, centre, burn, thin, relabel_
     switch = 0.0
     if relabel_sources:
         x, perms = relabel(x, prior.n_sources, periodic_loc, lpost)
-        switch = _switch_fraction(perms)
+        perm, switch = dominant_permutation(perms)
+        tau = tau[block_index(perm, w, prior.n_params)]  # tau of the relabelled parameters
     estimate = x.reshape(-1, x.shape[-1]).mean(axis=0)
     if prior.periodic.any():
         estimate[prior.periodic] = circular_mean(x[..., prior.periodic].reshape(
@@ -379,15 +380,6 @@ def _assemble(model, data, prior, logpost, sampler, centre, burn, thin, relabel_
                 start=centre, tau=tau, n_steps=n_steps, burn=burn, thin=thin,
                 acceptance_fraction=np.asarray(sampler.acceptance_fraction),
                 switch_fraction=switch)
-
-
-def _switch_fraction(perms: np.ndarray) -> float:
-    """Fraction of draws whose permutation differs from the most common one."""
-    flat = perms.reshape(-1, perms.shape[-1])
-    if flat.shape[0] == 0:
-        return 0.0
-    _, counts = np.unique(flat, axis=0, return_counts=True)
-    return float(1.0 - counts.max() / flat.shape[0])
 
 
 def _crlb_cov(model: Model, prior: ScenePrior, x: np.ndarray) -> np.ndarray:
