@@ -9,11 +9,12 @@ is kept.  Per separation:
 
 * P(K = 2 selected) and the median Bayes factor log Z2 - log Z1 (nats; an
   undefined Laplace value -- singular Fisher matrix -- counts as -inf);
-* the RMS angle error of the K = 2 ML fit next to Eq. 4 (theta_sd =
-  2 sigma / (I sqrt(N dtheta / pi)), "random guessing" for N dtheta / pi <= 1,
-  i.e. below HALF a spacing) and the exact CRLB at the true scene (median over
-  the trials' placements; the fraction of placements with a singular Fisher
-  matrix is printed);
+* the RMS angle error of the K = 2 ML fit over all trials, and over the
+  resolvable placements (non-singular Fisher matrix at the true scene) next to
+  the exact CRLB at the true scene (RMS over the same placements) and Eq. 4
+  (theta_sd = 2 sigma / (I sqrt(N dtheta / pi)), "random guessing" for
+  N dtheta / pi <= 1, i.e. below HALF a spacing); the fraction of placements
+  with a singular Fisher matrix is printed;
 * the separation at 50 % detection, in units of h (linear interpolation).
 
 What to expect: with the clipped cosine two sources seen by the same
@@ -32,8 +33,9 @@ resolution_limit.csv, resolution_limit.txt.
 
 Usage::
 
-    python analyses/resolution_limit.py            # quick: 30 trials per point
-    python analyses/resolution_limit.py --full     # 100 trials per point, 500 K=1 truths
+    python analyses/resolution_limit.py            # 100 trials per point, 500 K=1 truths
+    python analyses/resolution_limit.py --quick    # 30 trials per point, 200 K=1 truths
+    python analyses/resolution_limit.py --full     # 300 trials per point, 1000 K=1 truths
 """
 
 from __future__ import annotations
@@ -87,13 +89,19 @@ def run_point(model: Model, sep: float, trials: int, seed: int) -> dict:
         lbf.append(z2 - z1 if np.isfinite(z2) else -np.inf)
         err.append(_angle_rms(res[2].params, x))
         bound.append(_crlb_theta(model, x))
-    bound = np.array(bound)
+    bound, err = np.array(bound), np.array(err)
+    ok = np.isfinite(bound)  # resolvable placements: the CRLB exists
+
+    def rms(a):
+        return float(np.sqrt(np.mean(np.square(a)))) if a.size else float("nan")
+
     return {
         "p_detect": float(np.mean(det)),
         "median_log_bf": float(np.median(lbf)),
-        "rms_error": float(np.sqrt(np.mean(np.square(err)))),
-        "crlb": float(np.median(bound)),
-        "singular": float(np.mean(~np.isfinite(bound))),
+        "rms_error": rms(err),
+        "rms_resolvable": rms(err[ok]),
+        "crlb_rms": rms(bound[ok]),
+        "singular": float(np.mean(~ok)),
         "eq4": float(crlb_eq4(N, model.sigma, 1.0, sep)[0]),
     }
 
@@ -128,9 +136,13 @@ def plot(results: dict, fig=None):
         ax1.plot(SEPS_H, p, "o-", label=f"sigma = {sigma:g}")
         lbf = np.array([r["median_log_bf"] for r in rows])
         ax2.plot(SEPS_H, np.where(np.isfinite(lbf), lbf, np.nan), "o-", label=f"sigma = {sigma:g}")
-        c = ax3.plot(SEPS_H, [r["rms_error"] for r in rows], "o", label=f"ML RMS, sigma={sigma:g}")
+        c = ax3.plot(SEPS_H, [r["rms_resolvable"] for r in rows], "o",
+                     label=f"ML RMS, sigma={sigma:g}\n(resolvable placements)")
         col = c[0].get_color()
-        ax3.plot(SEPS_H, [r["crlb"] for r in rows], "-", color=col, label="exact CRLB (median)")
+        ax3.plot(SEPS_H, [r["rms_error"] for r in rows], "o", mfc="none", color=col,
+                 label="ML RMS, all placements")
+        ax3.plot(SEPS_H, [r["crlb_rms"] for r in rows], "-", color=col,
+                 label="exact CRLB (RMS, resolvable)")
         ax3.plot(SEPS_H, [r["eq4"] for r in rows], "--", color=col, label="Eq. 4")
     from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
 
@@ -150,6 +162,9 @@ def plot(results: dict, fig=None):
     ax1.set_ylabel("P(K = 2 selected)")
     ax1.set_title("detection of the second source\n(dotted: Eq. 4 threshold h/2, h, 2h)")
     ax2.set_yscale("symlog", linthresh=10)
+    lo = min((r["median_log_bf"] for rows in results.values() for r in rows
+              if np.isfinite(r["median_log_bf"])), default=0.0)
+    ax2.set_ylim(bottom=min(-30.0, 3 * lo))  # -inf medians (singular K = 2) are not drawn
     ax2.axhline(0, color="0.6", lw=0.8)
     ax2.set_ylabel("median log Bayes factor Z2 : Z1 (nats)")
     ax2.set_title("evidence for two sources")
@@ -157,7 +172,8 @@ def plot(results: dict, fig=None):
     ax3.set_ylabel("angle error std (rad)")
     ax3.set_title("K = 2 ML fit vs Eq. 4 and the exact CRLB")
     ax1.legend(fontsize=8)
-    ax3.legend(fontsize=7, ncol=2)
+    ax3.set_ylim(top=30.0)  # room for the legend above the data (errors < 1 rad)
+    ax3.legend(fontsize=6.5, ncol=2, loc="upper right")
     fig.tight_layout()
     return fig
 
@@ -174,7 +190,8 @@ def read_csv(path: Path) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--full", action="store_true", help="100 trials per point, 500 K=1 truths")
+    ap.add_argument("--full", action="store_true", help="300 trials per point, 1000 K=1 truths")
+    ap.add_argument("--quick", action="store_true", help="30 trials per point, 200 K=1 truths")
     ap.add_argument("--trials", type=int, default=None, help="trials per point")
     ap.add_argument("--seed", type=int, default=20260123)
     ap.add_argument("--out", type=Path, default=Path("out/resolution_limit"))
@@ -185,8 +202,8 @@ def main(argv=None) -> int:
         plot(read_csv(args.out / "resolution_limit.csv")).savefig(
             args.out / "resolution_limit.png", dpi=120)
         return 0
-    trials = args.trials or (100 if args.full else 30)
-    n_fa = 500 if args.full else 200
+    trials = args.trials or (300 if args.full else 30 if args.quick else 100)
+    n_fa = 1000 if args.full else 200 if args.quick else 500
     args.out.mkdir(parents=True, exist_ok=True)
     seeds = np.random.SeedSequence(args.seed).spawn(len(SIGMAS) * (len(SEPS_H) + 1))
     results, fa = {}, {}
@@ -202,21 +219,23 @@ def main(argv=None) -> int:
                   flush=True)
         results[sigma] = rows
         fa[sigma] = false_alarms(model, n_fa, seeds[i * (len(SEPS_H) + 1) + len(SEPS_H)])
-    header = ("sigma", "sep_h", "sep_rad", "p_detect", "median_log_bf", "rms_error", "crlb",
-              "singular", "eq4")
+    header = ("sigma", "sep_h", "sep_rad", "p_detect", "median_log_bf", "rms_error",
+              "rms_resolvable", "crlb_rms", "singular", "eq4")
     with open(args.out / "resolution_limit.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for sigma, rows in results.items():
             for s, r in zip(SEPS_H, rows):
                 w.writerow([sigma, s, s * H] + [r[k] for k in header[3:]])
-    lines.append(f"{'sigma':>7} {'sep/h':>6} {'P(K=2)':>7} {'med lnB21':>10} {'RMS err':>10} "
-                 f"{'CRLB':>10} {'singular':>8} {'Eq.4':>10}")
+    lines.append(f"{'sigma':>7} {'sep/h':>6} {'P(K=2)':>7} {'med lnB21':>11} {'RMS all':>9} "
+                 f"{'RMS res.':>9} {'CRLB res.':>9} {'singular':>8} {'Eq.4':>9}")
     for sigma, rows in results.items():
         for s, r in zip(SEPS_H, rows):
-            lines.append(f"{sigma:7.0e} {s:6.2f} {r['p_detect']:7.2f} {r['median_log_bf']:10.1f} "
-                         f"{r['rms_error']:10.3g} {r['crlb']:10.3g} {r['singular']:8.2f} "
-                         f"{r['eq4']:10.3g}")
+            lines.append(f"{sigma:7.0e} {s:6.2f} {r['p_detect']:7.2f} {r['median_log_bf']:11.1f} "
+                         f"{r['rms_error']:9.3g} {r['rms_resolvable']:9.3g} {r['crlb_rms']:9.3g} "
+                         f"{r['singular']:8.2f} {r['eq4']:9.3g}")
+    lines.append("(RMS res., CRLB res.: RMS of the ML angle error and of the exact CRLB over the "
+                 "placements whose Fisher matrix at the truth is non-singular)")
     for sigma, rows in results.items():
         x50 = crossing(SEPS_H, np.array([r["p_detect"] for r in rows]))
         lines.append(f"sigma={sigma:g}: 50% detection at {x50:.2f} sensor spacings "
