@@ -103,6 +103,24 @@ def test_crlb_check_flags_low_snr_with_reasons():
                                    "reason"]
 
 
+def test_crlb_reasons_tell_resolution_limit_from_within_source_correlation():
+    """Plate, two sources: each source's z and I are strongly correlated (a geometric
+    degeneracy of one source, not a resolution limit); only the I[0]-I[1] correlation
+    between the two sources is reported as the resolution limit."""
+    plate = Model(Plate.grid(4, 4), sigma=0.01)
+    truth = np.array([-0.7, -0.5, 1.0, 1.0, 0.8, 0.6, 1.2, 0.7])
+    data = plate.simulate(truth, rng=3)
+    res = sample(plate, data, 2, priors=default_priors(plate, 2, i_max=3.0), start=truth,
+                 rng=1, progress=False, n_steps=300)
+    corr = res.crlb_cov / np.outer(res.crlb_std, res.crlb_std)
+    assert abs(corr[2, 3]) > 0.9 and abs(corr[3, 7]) > 0.9 and abs(corr[2, 7]) < 0.9
+    reasons = dict(zip(res.names, res.crlb_check().reasons))
+    assert "strongly correlated (CRLB |r| = " in reasons["z[0]"] and "with I[0]" in reasons["z[0]"]
+    assert "resolution" not in reasons["z[0]"] and "resolution" not in reasons["x[0]"]
+    assert "near the resolution limit (CRLB |r| = " in reasons["I[0]"]
+    assert "with I[1])" in reasons["I[0]"]
+
+
 def test_short_run_has_no_arviz_shape_warning(ring_case):
     """More walkers than stored draws is legitimate: no ArviZ shape warning (-> error here)."""
     model, truth, data = ring_case

@@ -16,7 +16,8 @@ __all__ = ["unwrap_around", "summary", "crlb_check", "CRLBCheck"]
 LOW_SNR = 10.0
 #: A sub-sensor horizon closer than this many CRLB sds makes a source "near the kink".
 KINK_SDS = 2.0
-#: CRLB correlation above which two parameters are near the resolution limit.
+#: CRLB |correlation| above which two parameters count as strongly correlated (between
+#: two sources: near the resolution limit).
 HIGH_CORRELATION = 0.9
 
 
@@ -74,10 +75,12 @@ class CRLBCheck:
         Known causes present for each parameter (empty when none):
         ``unidentifiable`` (CRLB inf); ``prior-dominated`` (CRLB sd > 0.3 prior
         sd); ``near a prior boundary`` (support edge within 3 CRLB sd);
-        ``near the resolution limit`` (|CRLB correlation| > 0.9 with another
-        parameter); ``low SNR`` (I / CRLB sd of I < 10 for the source);
-        ``near the kink`` (a sub-sensor horizon within 2 CRLB sd of the
-        direction); ``poor mixing`` (bulk ESS < 100 or R-hat > 1.05).
+        ``near the resolution limit`` (|CRLB correlation| > 0.9 with a
+        parameter of another source); ``strongly correlated`` (> 0.9 within one
+        source or with sigma, e.g. a plate's z and I); ``low SNR`` (I / CRLB sd
+        of I < 10 for the source); ``near the kink`` (a sub-sensor horizon
+        within 2 CRLB sd of the direction); ``poor mixing`` (bulk ESS < 100 or
+        R-hat > 1.05).
     """
 
     names: tuple[str, ...]
@@ -136,14 +139,32 @@ def _reasons(result: PosteriorResult, table, crlb_sd: np.ndarray) -> list[list[s
         if finite[j] and not prior.periodic and min(
                 est[j] - prior.lower, prior.upper - est[j]) < 3 * crlb_sd[j]:
             out[j].append("near a prior boundary")
-        if finite[j] and np.nanmax(np.abs(corr[j])) > HIGH_CORRELATION:
-            out[j].append("near the resolution limit")
+        if finite[j]:
+            out[j].extend(_correlation_reasons(j, corr[j], src, w, k, result.names))
         if src is not None and snr[src] < LOW_SNR:
             out[j].append("low SNR")
         if src is not None and kink[src]:
             out[j].append("near the kink (a sub-sensor horizon within 2 sd)")
         if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > 1.05:
             out[j].append("poor mixing")
+    return out
+
+
+def _correlation_reasons(j: int, corr_j: np.ndarray, src: int | None, w: int, k: int,
+                         names: tuple[str, ...]) -> list[str]:
+    """CRLB correlations above HIGH_CORRELATION.  With another source's parameter the
+    two sources are near the resolution limit; within one source (a plate's z and I,
+    say) or with sigma the bound is strongly correlated, no resolution limit involved."""
+    owner = np.array([i // w if i < k * w else -1 for i in range(corr_j.size)])
+    r = np.where(np.isfinite(corr_j), np.abs(corr_j), 0.0)
+    r[j] = 0.0
+    other_source = (owner >= 0) & (owner != src) if src is not None else np.zeros(r.size, bool)
+    out = []
+    for label, mask in (("near the resolution limit", other_source),
+                        ("strongly correlated", ~other_source)):
+        if mask.any() and r[mask].max() > HIGH_CORRELATION:
+            i = int(np.flatnonzero(mask)[np.argmax(r[mask])])
+            out.append(f"{label} (CRLB |r| = {r[i]:.2f} with {names[i]})")
     return out
 
 
