@@ -231,6 +231,10 @@ def test_split_rhat_flags_separated_chains():
     assert np.all(np.abs(split_rhat(good) - 1) < 0.02)
     bad = good + np.array([0.0, 0.0, 3.0, 3.0])[:, None, None]
     assert np.all(split_rhat(bad) > 1.5)
+    # discrete draws: chains frozen in different states are not mixed; agreeing ones are
+    frozen = np.zeros((4, 50, 2))
+    frozen[2:, :, 0] = 1.0
+    np.testing.assert_array_equal(split_rhat(frozen), [np.inf, 1.0])
 
 
 # -- the public entry point -------------------------------------------------------
@@ -279,7 +283,8 @@ def test_poorly_mixed_chains_warn():
         (dict(i_max=-1.0), "i_max"),
         (dict(prior="laplace"), "prior"),
         (dict(sampler="nuts"), "sampler"),
-        (dict(level=1.0), "level"),
+        (dict(level=1.0), r"level must be a number in \(0, 1\)"),
+        (dict(level=0.0), r"level must be a number in \(0, 1\)"),
         (dict(n_samples=1), "n_samples"),
     ],
 )

@@ -46,7 +46,9 @@ def hpd_interval(
 def split_rhat(chains: np.ndarray) -> np.ndarray:
     """Split-chain potential scale reduction (Gelman et al. 2013), shape (K,).
 
-    ``chains`` has shape (C, S, K).  Constant columns give 1.
+    ``chains`` has shape (C, S, K).  Columns constant within every half-chain
+    give 1 when all halves agree and inf when they differ (chains frozen in
+    different states -- common for discrete draws such as dark/bright pixels).
     """
     c, s, k = chains.shape
     h = s // 2
@@ -58,7 +60,7 @@ def split_rhat(chains: np.ndarray) -> np.ndarray:
     var = (h - 1) / h * w + b / h
     with np.errstate(invalid="ignore", divide="ignore"):
         r = np.sqrt(var / w)
-    return np.where(w > 0, r, 1.0)
+    return np.where(w > 0, r, np.where(b > 0, np.inf, 1.0))
 
 
 @dataclass(frozen=True)
