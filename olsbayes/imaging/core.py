@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numbers
 import warnings
 
 import numpy as np
@@ -31,9 +32,9 @@ def _check_options(prior, sampler, level, null_warn):
         raise InputError(
             f"sampler must be one of {', '.join(map(repr, SAMPLERS))}; got {sampler!r}"
         )
-    level = positive_float("level", level, upper=1.0)
-    if level >= 1.0:
-        raise InputError(f"level must be in (0, 1); got {level!r}")
+    if isinstance(level, bool) or not isinstance(level, numbers.Real) or not 0 < level < 1:
+        raise InputError(f"level must be a number in (0, 1); got {level!r}")
+    level = float(level)
     null_warn = positive_float("null_warn", null_warn, upper=1.0)
     return prior.lower(), sampler.lower(), level, null_warn
 
