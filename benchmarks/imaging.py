@@ -16,7 +16,9 @@ ratio to 1 s, coverage of the 90 % intervals, largest split R-hat.  BLAS is
 pinned to one thread (the machine is shared); timings are wall-clock medians.
 
 ``python benchmarks/imaging.py`` (T = 20 draws for the fast estimators, 3 for
-the samplers) or ``--full`` (20 for all).  Writes ``imaging.csv`` to ``--out``.
+the samplers, 60 draws per chain) or ``--full`` (20 for all, 200 per chain);
+``--mc-trials`` and ``--n-samples`` override the sampler settings (e.g. 20
+draws of short chains for a coverage estimate).  Writes ``imaging.csv`` to ``--out``.
 """
 
 from __future__ import annotations
@@ -90,8 +92,12 @@ def main() -> None:
     p.add_argument("--full", action="store_true")
     p.add_argument("--out", default="out/imaging_bench")
     p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--mc-trials", type=int, default=None, help="noise draws with the samplers")
+    p.add_argument("--n-samples", type=int, default=None, help="kept draws per chain")
     args = p.parse_args()
     trials, mc_trials, n_samples = (20, 20, 200) if args.full else (20, 3, 60)
+    mc_trials = min(trials, args.mc_trials) if args.mc_trials is not None else mc_trials
+    n_samples = args.n_samples if args.n_samples is not None else n_samples
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
