@@ -31,7 +31,9 @@ __all__ = ["relabel", "reference_order", "dominant_permutation", "block_index"]
 
 def _diff(a: np.ndarray, b: np.ndarray, periodic: np.ndarray) -> np.ndarray:
     d = a - b
-    return np.where(periodic, wrap_angle(d), d)
+    if periodic.any():  # wrap only the periodic columns (np.mod is the costly part)
+        d[..., periodic] = wrap_angle(d[..., periodic])
+    return d
 
 
 def reference_order(blocks: np.ndarray, periodic: np.ndarray, pivot: float) -> np.ndarray:

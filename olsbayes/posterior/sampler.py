@@ -174,7 +174,9 @@ def _rhat_checker(sampler, logpost, prior, rhat_max):
             return False
         z = chain[burn::step].swapaxes(0, 1)
         lpost = sampler.get_log_prob()[burn::step].T - logpost.jacobian(z)
-        x, _ = relabel(x, prior.n_sources, prior.periodic[: prior.n_loc + 1], lpost)
+        x, perms = relabel(x, prior.n_sources, prior.periodic[: prior.n_loc + 1], lpost)
+        if np.all(perms == np.arange(prior.n_sources)):
+            return False  # nothing relabelled: the same draws that just failed
         return _rhat_max(x, prior, rhat_array) < rhat_max
 
     return check
