@@ -254,6 +254,26 @@ def test_bounded_image_on_a_well_posed_ring():
     np.testing.assert_allclose(gib.mean, res.mean, atol=4 * res.sd.max() / np.sqrt(100))
 
 
+def test_nonnegative_image_matches_2d_quadrature(ring_problem):
+    # flat prior on I >= 0 (no upper bound); noise large enough that the wall at 0 matters
+    # (the second intensity's posterior mean moves from 0.01 unconstrained to 0.18)
+    model, dirs, a, y = ring_problem
+    q, b = a.T @ a / model.sigma**2, a.T @ y / model.sigma**2
+    hi = 3.5  # > 13 posterior sd above the unconstrained mean: the cut-off is immaterial
+    mean, cov = _box_moments_2d(q, b, np.zeros(2), np.full(2, hi))
+    for sampler in ("gibbs", "hmc"):
+        res = image(model, y, dirs, prior="nonnegative", sampler=sampler, rng=8,
+                    n_samples=1500, n_chains=8, n_burn=50)
+        assert res.prior == "nonnegative" and res.sampler == sampler
+        assert np.all(res.samples >= 0) and np.all(np.isfinite(res.upper))
+        x = np.moveaxis(res.samples, 1, 0)  # (S, C, 2)
+        se = _batch_se(x.mean(axis=1))
+        np.testing.assert_array_less(np.abs(res.mean - mean), 5 * se)
+        se2 = _batch_se(((x - mean) ** 2).mean(axis=1))
+        d2 = ((x - mean) ** 2).reshape(-1, 2).mean(axis=0)
+        np.testing.assert_array_less(np.abs(d2 - np.diag(cov)), 5 * se2)
+
+
 def test_image_is_reproducible_with_a_seed(ring_problem):
     model, dirs, a, y = ring_problem
     r1 = image(model, y, dirs, rng=5, n_samples=20, n_burn=5)
