@@ -66,30 +66,34 @@ def _lm_step(
     """One damped Gauss–Newton proposal; returns (x_new, chi2_old, predicted decrease).
 
     The response is read off the Jacobian (its intensity columns are the
-    unit-intensity responses), so a step costs one Jacobian evaluation.
+    unit-intensity responses), so a step costs one Jacobian evaluation.  Fixed
+    parameters (an intensity at its bound 0 with the gradient pointing outwards,
+    or ``frozen``) get a zero step.
     """
     jac = model.jacobian(x)  # (T, N, P)
     d1 = model.n_loc + 1
-    inten = x[:, d1 - 1 :: d1]
-    r = data - (jac[:, :, d1 - 1 :: d1] @ inten[:, :, None])[..., 0]
-    a = np.swapaxes(jac, 1, 2) @ jac  # (T, P, P)
-    g = (r[:, None, :] @ jac)[:, 0, :]  # descent direction of chi2 / 2
+    jt = np.swapaxes(jac, 1, 2)  # (T, P, N)
+    r = data - (jac[:, :, d1 - 1 :: d1] @ x[:, d1 - 1 :: d1, None])[..., 0]
+    a = jt @ jac  # (T, P, P)
+    g = (jt @ r[..., None])[..., 0]  # descent direction of chi2 / 2
     p = x.shape[1]
-    is_int = np.zeros(p, bool)
-    is_int[d1 - 1 :: d1] = True
-    fixed = is_int & (x <= 0.0) & (g <= 0.0)
+    fixed = np.zeros(x.shape, bool)
+    fixed[:, d1 - 1 :: d1] = (x[:, d1 - 1 :: d1] <= 0.0) & (g[:, d1 - 1 :: d1] <= 0.0)
     if frozen is not None:
-        fixed = fixed | frozen
+        fixed |= frozen
     diag = np.diagonal(a, axis1=1, axis2=2)
     floor = 1e-9 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
-    eye = np.eye(p)
-    a_d = a + (lam[:, None] * np.maximum(diag, floor))[:, :, None] * eye
-    keep = ~fixed
-    a_d = a_d * (keep[:, :, None] & keep[:, None, :]) + fixed[:, :, None] * eye
-    g = np.where(fixed, 0.0, g)
-    step = np.linalg.solve(a_d, g[..., None])[..., 0]
-    pred = 2.0 * np.einsum("tp,tp->t", step, g) - np.einsum("tp,tpq,tq->t", step, a, step)
-    return project(model, x + step), np.einsum("tn,tn->t", r, r), pred
+    a_d = a.copy()
+    idx = np.arange(p)
+    a_d[:, idx, idx] += lam[:, None] * np.maximum(diag, floor)
+    if fixed.any():
+        keep = ~fixed
+        a_d *= keep[:, :, None] & keep[:, None, :]
+        a_d[:, idx, idx] += fixed
+        g = np.where(fixed, 0.0, g)
+    step = np.linalg.solve(a_d, g[..., None])  # (T, P, 1)
+    pred = (2.0 * g - (a @ step)[..., 0])[:, None, :] @ step  # step' (2 g - A step)
+    return project(model, x + step[..., 0]), np.einsum("tn,tn->t", r, r), pred[:, 0, 0]
 
 
 def refine_batch(

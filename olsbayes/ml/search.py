@@ -36,11 +36,14 @@ def _scores(g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, q: np.ndarray) -> 
     """
     num = s @ g.T  # (T, M)
     den = np.broadcast_to(gnorm2, num.shape).copy()
-    if q.shape[2]:
-        cg = g @ q  # (T, M, k), batched BLAS
-        cs = (s[:, None, :] @ q)[:, 0, :]  # (T, k)
-        num = num - (cg @ cs[:, :, None])[..., 0]
-        den = den - np.square(cg).sum(axis=-1)
+    t, n, k = q.shape
+    if k:
+        qt = np.swapaxes(q, 1, 2)  # (T, k, N)
+        cg = (qt.reshape(t * k, n) @ g.T).reshape(t, k, -1)  # (T, k, M), one GEMM
+        cs = (qt @ s[:, :, None])[..., 0]  # (T, k)
+        for j in range(k):
+            num -= cg[:, j] * cs[:, j, None]
+            den -= np.square(cg[:, j])
     ok = (num > 0) & (den > 1e-8 * gnorm2)
     return np.where(ok, num**2 / np.where(ok, den, 1.0), -np.inf)
 

@@ -24,7 +24,7 @@ __all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "tuple_search", "Tupl
 
 #: Default cap on the number of K-tuples enumerated per data vector.
 TUPLE_BUDGET = 5_000
-_BLOCK = 4_000_000  # elements of the (t, C, K) work arrays per block
+_BLOCK = 65_536  # elements of each (t, C) work array per block: stays in cache
 
 
 def coarse_size(m: int, n: int, k: int, budget: int = TUPLE_BUDGET) -> int:
