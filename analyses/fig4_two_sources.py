@@ -71,6 +71,15 @@ def measure(sep: float, trials: int, rng: np.random.Generator) -> dict:
     return row
 
 
+def breakdown_edge(rows: list[dict]) -> tuple[float | None, float | None]:
+    """(largest separation that broke down, smallest efficient one above it), rad."""
+    bad = [r["sep"] for r in rows if r["status"] != "ok"]
+    if not bad:
+        return None, None
+    above = [r["sep"] for r in rows if r["status"] == "ok" and r["sep"] > max(bad)]
+    return max(bad), (min(above) if above else None)
+
+
 def print_table(rows: list[dict]) -> None:
     head = (f"{'sep rad':>8s} {'/spacing':>8s} {'N*d/pi':>7s} | {'th std':>9s} {'th CRLB':>9s} "
             f"{'th Eq4':>9s} | {'I std':>9s} {'I CRLB':>9s} {'I Eq4':>9s} | status")
@@ -80,26 +89,26 @@ def print_table(rows: list[dict]) -> None:
         print(f"{r['sep']:8.4f} {r['sep_spacings']:8.3f} {r['n_dtheta_over_pi']:7.3f} | "
               f"{r['theta_std']:9.2e} {r['theta_crlb']:9.2e} {r['theta_eq4']:9.2e} | "
               f"{r['i_std']:9.2e} {r['i_crlb']:9.2e} {r['i_eq4']:9.2e} | {r['status']}")
-    ok = [r for r in rows if r["status"] == "ok"]
-    bad = [r for r in rows if r["status"] != "ok"]
-    if ok and bad:
-        edge = min(r["sep"] for r in ok if r["sep"] > max(b["sep"] for b in bad)) \
-            if any(r["sep"] > max(b["sep"] for b in bad) for r in ok) else None
-        last_bad = max(b["sep"] for b in bad)
+    last_bad, edge = breakdown_edge(rows)
+    spacing = 2 * np.pi / N
+    if last_bad is not None:
         print(f"\nlargest breakdown separation: {last_bad:.4f} rad = "
-              f"{last_bad / (2 * np.pi / N):.2f} ring spacings (2 pi/N); "
+              f"{last_bad / spacing:.2f} ring spacings (2 pi/N); "
               f"N*d/pi = {N * last_bad / np.pi:.2f}")
-        if edge is not None:
-            print(f"efficient from {edge:.4f} rad = {edge / (2 * np.pi / N):.2f} ring spacings "
-                  f"up (observed <= {BREAK_RATIO}x exact CRLB)")
-    print("Eq. 4 threshold N*d/pi = 1  <=>  d = pi/N = 0.5 ring spacings")
+    if edge is not None:
+        print(f"efficient from {edge:.4f} rad = {edge / spacing:.2f} ring spacings up "
+              f"(observed <= {BREAK_RATIO}x exact CRLB); N*d/pi = {N * edge / np.pi:.2f}")
+    print("Eq. 4 threshold N*d/pi = 1  <=>  d = pi/N = 0.5 ring spacings (2 pi/N); it is "
+          "one sensor spacing only if the N sub-sensors span pi (a half ring)")
 
 
 def plot(rows: list[dict], path: Path):
     import matplotlib.pyplot as plt
 
     x = np.array([r["sep_spacings"] for r in rows])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    last_bad, edge = breakdown_edge(rows)
+    spacing = 2 * np.pi / N
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
     for ax, par, label in ((axes[0], "i", "amplitude"), (axes[1], "theta", "angle (rad)")):
         crlb = np.array([r[f"{par}_crlb"] for r in rows])
         ax.plot(x, np.where(np.isfinite(crlb), crlb, np.nan), "-", color="C0",
@@ -109,18 +118,32 @@ def plot(rows: list[dict], path: Path):
         obs = np.array([r[f"{par}_std"] for r in rows])
         ax.plot(x[ok], obs[ok], "o", color="k", mfc="none", label="ML (efficient)")
         ax.plot(x[~ok], obs[~ok], "x", color="C3", label="ML (breakdown / singular Fisher)")
-        ax.axvline(0.5, color="C1", lw=0.8, ls=":", label="Eq. 4 threshold N d/pi = 1")
+        ax.axvline(0.5, color="C1", lw=0.8, ls=":",
+                   label="Eq. 4 threshold N d/pi = 1 (d = pi/N)")
+        if last_bad is not None:
+            right = (edge if edge is not None else last_bad) / spacing
+            ax.axvspan(x.min() * 0.9, np.sqrt(last_bad / spacing * right), color="C3",
+                       alpha=0.08, label="measured breakdown")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ticks = [0.25, 0.5, 1, 2, 4, 7.5]
         ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
         ax.xaxis.set_minor_formatter(plt.NullFormatter())
-        ax.set_xlabel("separation / ring sensor spacing (2 pi / N)")
+        ax.set_xlabel("separation d / ring sensor spacing (2 pi / N)")
+        top = ax.secondary_xaxis("top", functions=(lambda v: 2 * v, lambda v: v / 2))
+        top.set_xlabel("N d / pi (Eq. 4's variable)")
         ax.set_ylabel(f"{label} error std")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle(f"Two sources I = 1, N = {N}, sigma = {SIGMA:g}")
-    fig.tight_layout()
+        ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.0, 0.28))
+    note = ("Eq. 4's threshold N d/pi = 1 is d = pi/N = half this ring's spacing 2 pi/N; it is "
+            "'one sensor spacing' only if the N sub-sensors span pi (a half ring).")
+    if edge is not None:
+        note += (f"\nMeasured: breakdown up to {last_bad / spacing:.2f} spacings "
+                 f"(N d/pi = {N * last_bad / np.pi:.1f}); ML at the exact CRLB from "
+                 f"{edge / spacing:.2f} spacings (N d/pi = {N * edge / np.pi:.1f}) up.")
+    fig.suptitle(f"Two sources I = 1, N = {N}, sigma = {SIGMA:g}", y=0.99)
+    fig.text(0.5, 0.005, note, ha="center", va="bottom", fontsize=8)
+    fig.tight_layout(rect=(0, 0.07, 1, 0.97))
     fig.savefig(path, dpi=120)
     return fig
 
