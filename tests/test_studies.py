@@ -60,6 +60,13 @@ def short_batch(settings, rngs):
     return {"x": np.zeros(len(rngs) - 1)}
 
 
+def reenters(settings, rng):
+    """A trial that starts a second study on the checkpoint its own study holds."""
+    ds = run_study(const_one, {}, 1, executor="serial", rng=1, checkpoint=settings["ckpt"],
+                   progress=False)
+    return {"x": float(ds.x.sum())}
+
+
 def test_same_numbers_on_every_executor_worker_count_and_chunking():
     from distributed import Client, LocalCluster
 
@@ -153,6 +160,17 @@ def test_trial_error_propagates_and_finished_chunks_stay_checkpointed(tmp_path):
     assert "cell 1" in "".join(getattr(info.value, "__notes__", []))
     frames, _, _ = _read_frames(ckpt)
     assert sorted(int(_decode_chunk(p).cell) for k, p in frames[1:]) == [0, 0]
+    with pytest.raises(ZeroDivisionError):  # lock released on error: the rerun resumes
+        run_study(fails_on_cell, {"sigma": [0.01, 0.1]}, 6, executor="serial", chunk_size=3,
+                  checkpoint=ckpt, rng=2, progress=False)
+
+
+def test_checkpoint_held_by_a_running_study_is_refused(tmp_path):
+    ckpt = tmp_path / "c.ckpt"
+    with pytest.raises(InputError, match="in use by another running study"):
+        run_study(reenters, {}, 1, fixed={"ckpt": str(ckpt)}, executor="serial", rng=1,
+                  checkpoint=ckpt, progress=False)
+    assert len(_read_frames(ckpt)[0]) == 1  # header only: the second study wrote nothing
 
 
 def test_checkpoint_from_other_settings_is_refused(tmp_path):

@@ -11,7 +11,10 @@ A chunk frame is written with a single ``write`` on a file opened in append
 mode and then ``fsync``-ed, so after ``kill -9`` the file ends either on a
 complete frame or on a torn one; a torn or checksum-failing *last* frame is
 dropped (those trials are simply run again), which is why no trial is ever lost
-or counted twice.  The header is created through an atomic rename.
+or counted twice.  The header is created through an atomic rename.  While a study
+runs it holds an exclusive advisory lock (``flock``) on the file, so a second study
+started on the same checkpoint is refused instead of running the same trials
+again; the kernel drops the lock when the process dies, even by ``kill -9``.
 """
 
 from __future__ import annotations
@@ -94,12 +97,50 @@ def _read_frames(path: Path) -> tuple[list[tuple[bytes, bytes]], int, int]:
     return frames, pos, len(data)
 
 
-class Checkpoint:
-    """An open study checkpoint; create or resume with :meth:`open`."""
+def _lock(path: Path) -> int | None:
+    """Exclusive advisory lock on ``path``: the locked descriptor, or None where file
+    locks are unavailable (no ``fcntl``, or a file system without locks: warns)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not on POSIX
+        return None
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise InputError(
+            f"checkpoint {str(path)!r} is in use by another running study (it holds the "
+            "file's lock); wait for that study to finish, or use another checkpoint path"
+        ) from None
+    except OSError as exc:  # e.g. ENOLCK on some network file systems
+        os.close(fd)
+        warnings.warn(f"checkpoint {str(path)!r}: cannot lock it ({exc.strerror}); make sure "
+                      "no other study uses it at the same time", RuntimeWarning, stacklevel=4)
+        return None
+    return fd
 
-    def __init__(self, path: Path, records: list[ChunkRecord]):
+
+class Checkpoint:
+    """An open study checkpoint; create or resume with :meth:`open`, release with
+    :meth:`close` (also a context manager)."""
+
+    def __init__(self, path: Path, records: list[ChunkRecord], lock_fd: int | None = None):
         self.path = path
         self.records = records
+        self._lock_fd = lock_fd
+
+    def close(self) -> None:
+        """Release the checkpoint's lock (appending is no longer allowed)."""
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)  # closing the descriptor releases its flock
+            self._lock_fd = None
+
+    def __enter__(self) -> Checkpoint:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @classmethod
     def open(cls, path: str | os.PathLike, fingerprint: dict) -> Checkpoint:
@@ -117,9 +158,19 @@ class Checkpoint:
             header = {"format": FORMAT, "key": key, "fingerprint": fingerprint}
             with atomic_path(path) as tmp:
                 tmp.write_bytes(_frame(b"H", json.dumps(header, sort_keys=True).encode()))
-            return cls(path, [])
+            return cls(path, [], _lock(path))
         if path.is_dir():
             raise InputError(f"checkpoint {str(path)!r} is a folder, not a file")
+        fd = _lock(path)
+        try:
+            return cls._resume(path, key, fingerprint, fd)
+        except BaseException:
+            if fd is not None:
+                os.close(fd)
+            raise
+
+    @classmethod
+    def _resume(cls, path: Path, key: str, fingerprint: dict, fd: int | None) -> Checkpoint:
         frames, end, size = _read_frames(path)
         if not frames or frames[0][0] != b"H":
             raise InputError(f"checkpoint {str(path)!r} is not an olsbayes study checkpoint")
@@ -143,11 +194,11 @@ class Checkpoint:
                 f"checkpoint {str(path)!r}: dropping a torn last chunk ({size - end} bytes); "
                 "its trials will run again",
                 RuntimeWarning,
-                stacklevel=3,
+                stacklevel=4,
             )
             os.truncate(path, end)
         records = [_decode_chunk(p) for kind, p in frames[1:] if kind == b"C"]
-        return cls(path, records)
+        return cls(path, records, fd)
 
     def append(self, cell: int, trials: np.ndarray, values: dict) -> None:
         """Append one finished chunk durably (single write, then fsync)."""

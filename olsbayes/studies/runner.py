@@ -186,7 +186,8 @@ def run_study(
     checkpoint : path, optional
         Append-only checkpoint; an existing one made with the same settings is
         resumed (its recorded seed is used when ``rng`` is None), one made with
-        other settings is refused with :class:`~olsbayes.errors.InputError`.
+        other settings is refused with :class:`~olsbayes.errors.InputError`, and
+        so is one that another running study holds (file lock).
     out : path, optional
         Write the dataset there as NetCDF (atomic write).
     rng : int, SeedSequence, Generator or None
@@ -220,12 +221,16 @@ def run_study(
     fp = _fingerprint(trial, g, fixed_s, n_trials, entropy)
     records: list[ChunkRecord] = []
     ckpt = Checkpoint.open(checkpoint, fp) if checkpoint is not None else None
-    if ckpt is not None:
-        records = ckpt.records
-    todo = _remaining(records, g.n_cells, n_trials)
-    if any(len(t) for t in todo):
-        records = _execute(trial, g, fixed_s, n_trials, entropy, todo, ckpt, records,
-                           executor, workers, scheduler, chunk_size, progress)
+    try:  # the checkpoint stays locked against a second study until this one ends
+        if ckpt is not None:
+            records = ckpt.records
+        todo = _remaining(records, g.n_cells, n_trials)
+        if any(len(t) for t in todo):
+            records = _execute(trial, g, fixed_s, n_trials, entropy, todo, ckpt, records,
+                               executor, workers, scheduler, chunk_size, progress)
+    finally:
+        if ckpt is not None:
+            ckpt.close()
     ds = _dataset(_assemble(records, g, n_trials), g, fp)
     if out is not None:
         with atomic_path(out) as tmp:
