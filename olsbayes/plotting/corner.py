@@ -154,7 +154,7 @@ def plot_trace(result, fig: Any = None, max_walkers: int = 32) -> Any:
         hx.hist(x[..., j].ravel(), bins=40, orientation="horizontal", color="0.4")
         hx.sharey(ax)
         hx.tick_params(labelleft=False)
-    axes[-1, 0].set_xlabel("step (after burn-in)")
+    axes[-1, 0].set_xlabel(f"step (the first {result.burn} removed as burn-in)")
     axes[-1, 1].set_xlabel("count")
     fig.suptitle(f"emcee traces: {x.shape[0]} walkers, burn-in {result.burn}, thin {result.thin}")
     return fig
