@@ -180,6 +180,20 @@ def test_fit_posterior_report(tmp_path, capsys):
                for line in err.strip().splitlines())
 
 
+def test_fit_posterior_table_lists_sources_in_the_ml_tables_order():
+    """The posterior's own labels (cyclic from a pivot) may differ from the ML table's
+    (sorted angles); the printed posterior rows follow the ML table's k."""
+    from olsbayes.cli.fit import _ml_table_order
+
+    model = Model(Ring(30), 0.01)
+    estimate = np.array([0.37, 1.0, -2.77, 0.2, 0.011])  # posterior labels; then sigma
+    pairs = _ml_table_order(model, estimate, 2)
+    assert pairs == [(0, 2), (0, 3), (1, 0), (1, 1), ("-", 4)]
+    ml = model.canonical(estimate[:4]).reshape(2, 2)
+    for k_ml, i in pairs[:4]:
+        assert estimate[i] == ml[k_ml, i % 2]
+
+
 def test_fit_posterior_rejects_contradictory_options(tmp_path, capsys):
     readings = tmp_path / "r.txt"
     main(["simulate", "--repeats", "2", "--out", str(readings)])

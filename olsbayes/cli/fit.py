@@ -26,6 +26,7 @@ import numpy as np
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import read_readings
 from ..errors import InputError
+from ..geometry import wrap_angle
 from ..model import Model
 from ..scene import Scene
 from ._common import (
@@ -156,6 +157,21 @@ def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
         output_dir(args.report, "--report")
 
 
+def _ml_table_order(model: Model, estimate: np.ndarray, k: int) -> list[tuple[Any, int]]:
+    """(source index of the ML table, parameter index) pairs, sources in canonical order.
+
+    The posterior labels sources by its own relabelling rule (cyclic from a pivot);
+    the ML table by :meth:`Model.canonical`.  Rows follow the ML table so a reader
+    compares the same source in both; parameters after the sources (sigma) come last.
+    """
+    d1 = model.n_loc + 1
+    blocks = np.asarray(estimate[: k * d1], dtype=float).reshape(k, d1)
+    key = blocks[:, 0] if model.kind == "position" else wrap_angle(blocks[:, 0])
+    order = np.argsort(key, kind="stable")  # the rule of Model.canonical
+    pairs = [(rank, int(src) * d1 + j) for rank, src in enumerate(order) for j in range(d1)]
+    return pairs + [("-", i) for i in range(k * d1, len(estimate))]
+
+
 def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None, rng: Any,
                     max_steps: int = 20000, report: Path | None = None
                     ) -> tuple[dict[str, Any], str]:
@@ -170,11 +186,11 @@ def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None,
         "ratio": check.ratio, "flagged": check.flagged, "converged": post.converged,
         "n_steps": post.n_steps, "tau": post.tau,
     }
-    names = list(post.names)
-    rows = [[n, post.estimate[i], check.posterior_sd[i], check.crlb_sd[i], check.ratio[i]]
-            for i, n in enumerate(names)]
-    text = ["", f"Posterior (emcee, {post.n_steps} steps, converged={post.converged}):",
-            format_table(["param", "mean", "posterior sd", "CRLB sd", "ratio"], rows)]
+    rows = [[k_ml, post.names[i].split("[")[0], post.estimate[i], check.posterior_sd[i], check.crlb_sd[i],
+             check.ratio[i]] for k_ml, i in _ml_table_order(model, post.estimate, k)]
+    text = ["", f"Posterior (emcee, {post.n_steps} steps, converged={post.converged}; "
+            "k as in the ML table):",
+            format_table(["k", "param", "mean", "posterior sd", "CRLB sd", "ratio"], rows)]
     if folder is not None:
         from ..posterior.report import write_report
 
