@@ -186,8 +186,9 @@ def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None,
         "ratio": check.ratio, "flagged": check.flagged, "converged": post.converged,
         "n_steps": post.n_steps, "tau": post.tau,
     }
-    rows = [[k_ml, post.names[i].split("[")[0], post.estimate[i], check.posterior_sd[i], check.crlb_sd[i],
-             check.ratio[i]] for k_ml, i in _ml_table_order(model, post.estimate, k)]
+    rows = [[k_ml, post.names[i].split("[")[0], post.estimate[i], check.posterior_sd[i],
+             check.crlb_sd[i], check.ratio[i]]
+            for k_ml, i in _ml_table_order(model, post.estimate, k)]
     text = ["", f"Posterior (emcee, {post.n_steps} steps, converged={post.converged}; "
             "k as in the ML table):",
             format_table(["k", "param", "mean", "posterior sd", "CRLB sd", "ratio"], rows)]
