@@ -194,7 +194,8 @@ class Sphere(SensorArray):
             raise InputError(f"n_lat * n_lon must be >= 3; got {n_lat * n_lon}")
         lat_max = positive_float("lat_max", lat_max, upper=np.pi / 2)
         bounds = finite_array("lon_range", lon_range, ndim=1)
-        if bounds.shape != (2,) or not bounds[1] > bounds[0] or bounds[1] - bounds[0] > TWO_PI + 1e-12:
+        span = bounds[1] - bounds[0] if bounds.shape == (2,) else np.nan
+        if not 0 < span <= TWO_PI + 1e-12:
             raise InputError(
                 f"lon_range must be (lo, hi) with lo < hi and hi - lo <= 2*pi; got {lon_range!r}"
             )
