@@ -302,9 +302,13 @@ def _finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict
     for w in works:
         if method == "auto" and w.method == "laplace" and w.reasons and w.k > best and (
                 w.log_likelihood - works[best].log_likelihood < min_gain):
+            low = ("; its p(K) rests on the untrusted Laplace value, which can be several "
+                   "nats low for an over-complete K (a source split within one sensor spacing "
+                   "predicts the same readings)") if np.isfinite(w.value) else ""
             notes.append(f"K={w.k}: not escalated, its ML fit gains only "
                          f"{w.log_likelihood - works[best].log_likelihood:.2f} nats of log L "
-                         f"over K={best} (< min_gain={min_gain:g}): the extra source fits noise")
+                         f"over K={best} (< min_gain={min_gain:g}): the extra source fits "
+                         f"noise{low}")
         if not np.isfinite(w.value):
             notes.append(f"K={w.k}: no evidence estimate ({'; '.join(w.reasons)}); p(K) set to 0")
         elif w.method == "laplace" and w.reasons and score[w.k] >= score.max() - decisive:
