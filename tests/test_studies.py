@@ -243,6 +243,19 @@ def _count_trials(ckpt: Path) -> np.ndarray:
     return counts
 
 
+def _session_members(sid: int) -> list[int]:
+    """Pids of live processes in session ``sid`` (Linux /proc; empty elsewhere)."""
+    pids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the process ended meanwhile
+            continue
+        if int(fields[3]) == sid and fields[0] != "Z":
+            pids.append(int(stat.parent.name))
+    return pids
+
+
 def test_study_killed_with_sigkill_resumes_without_loss_or_duplicates(tmp_path):
     script = tmp_path / "study_script.py"
     script.write_text(SCRIPT)
@@ -256,8 +269,16 @@ def test_study_killed_with_sigkill_resumes_without_loss_or_duplicates(tmp_path):
             if ckpt.exists() and _count_trials(ckpt).sum() >= 15:
                 break
             time.sleep(0.02)
-        os.killpg(proc.pid, signal.SIGKILL)
+        os.kill(proc.pid, signal.SIGKILL)  # the study's process only, not its workers
+        proc.wait()
+        # its pool workers notice and exit (none left computing or waiting for nobody)
+        deadline = time.monotonic() + 20
+        while _session_members(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert _session_members(proc.pid) == []
     finally:
+        if _session_members(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
     partial = _count_trials(ckpt)
     assert proc.returncode == -signal.SIGKILL and not out.exists()

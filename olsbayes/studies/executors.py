@@ -11,6 +11,9 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import os
+import select
+import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -76,6 +79,36 @@ class Backend:
         if self._closer is not None:
             self._closer()
             self._closer = None
+
+
+def _wait_for_exit(pid: int) -> None:
+    """Block until process ``pid`` has ended (pidfd on Linux, else polling each second)."""
+    try:
+        fd = os.pidfd_open(pid)
+    except (AttributeError, OSError):  # no pidfd here, or the process is already gone
+        fd = None
+    if fd is not None:
+        select.select([fd], [], [])  # the pidfd turns readable when the process exits
+        return
+    while True:
+        try:
+            os.kill(pid, 0)
+        except (ProcessLookupError, PermissionError):  # gone (or its pid reused by another user)
+            return
+        time.sleep(1.0)
+
+
+def _end_with(parent: int) -> None:
+    """Pool-worker initializer: exit as soon as the study's process ``parent`` dies.
+
+    Without it, a study killed with ``kill -9`` leaves its pool workers behind:
+    they finish their chunk for nobody, then wait forever on the task queue.
+    """
+    def watch() -> None:
+        _wait_for_exit(parent)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="olsbayes-study-parent-watch", daemon=True).start()
 
 
 def _local_workers(workers: int | None) -> int:
@@ -157,7 +190,8 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
         if executor == "processes":
             n = _local_workers(workers)
             pool = cf.ProcessPoolExecutor(max_workers=n,
-                                          mp_context=multiprocessing.get_context("forkserver"))
+                                          mp_context=multiprocessing.get_context("forkserver"),
+                                          initializer=_end_with, initargs=(os.getpid(),))
             return Backend("processes", n, pool.submit, "cf",
                            lambda: pool.shutdown(cancel_futures=True))
         if executor == "dask":
