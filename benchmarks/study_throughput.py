@@ -16,7 +16,7 @@ the CRLB).  Measured side by side:
 Usage::
 
     python benchmarks/study_throughput.py            # quick (~1 min)
-    python benchmarks/study_throughput.py --full     # more trials, 3 repeats
+    python benchmarks/study_throughput.py --full     # more trials
 """
 
 from __future__ import annotations
@@ -49,14 +49,51 @@ def timed(fn) -> float:
     return time.perf_counter() - t0
 
 
+def _cpu_ticks() -> tuple[int, int]:
+    """(idle, total) jiffies of all CPUs from /proc/stat ((0, 0) elsewhere)."""
+    try:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:]]
+    except OSError:
+        return 0, 0
+    return v[3] + v[4], sum(v[:8])
+
+
+def idle_during(fn) -> tuple[float, float]:
+    """Wall time of ``fn()`` and the fraction of all cores left idle meanwhile."""
+    i0, t0 = _cpu_ticks()
+    dt = timed(fn)
+    i1, t1 = _cpu_ticks()
+    return dt, (i1 - i0) / (t1 - t0) if t1 > t0 else float("nan")
+
+
 def study(executor, n, method="fast", trial=ring_estimate, chunk_size=None, **kw):
     return run_study(trial, {"method": [method]}, n, fixed=SETTINGS, executor=executor,
                      rng=1, chunk_size=chunk_size, progress=False, **kw)
 
 
-def throughput(n: int, repeats: int) -> dict:
+def _warm_one(_: int = 0) -> int:
+    """Run one ML trial (imports the estimator stack); return the worker's pid."""
+    ring_estimate({**SETTINGS, "method": "fast"}, trial_rngs(9, 0, np.arange(1)))
+    return os.getpid()
+
+
+def _warm_workers(pool, client) -> None:
+    """Make every worker of both pools import the trial and run it once, so no timed
+    round pays a worker's first import (seconds on a busy machine)."""
+    pids: set[int] = set()
+    for _ in range(20):
+        pids |= set(pool.map(_warm_one, range(8)))
+        if len(pids) >= 2:
+            break
+    client.run(_warm_one)  # on every Dask worker
+
+
+def throughput(n: int, repeats: int) -> tuple[dict, list]:
     """Trials per second, best of ``repeats`` rounds; each round runs serial, pool and
-    Dask back to back so that all three see the same background load."""
+    Dask back to back so that all three see the same background load.  Also returns
+    per round: the three times, the idle fraction of the cores during the serial run
+    (~0.5 on an idle 2-core machine: the second core is free for a pool) and the load."""
     from distributed import Client, LocalCluster
 
     times: dict[str, list[float]] = {"serial": [], "processes(2) warm": [],
@@ -66,16 +103,20 @@ def throughput(n: int, repeats: int) -> dict:
             LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                          dashboard_address=None) as cluster, Client(cluster) as client:
         study("serial", 8)  # imports and caches outside the clock
+        _warm_workers(pool, client)
         study(pool, 8, chunk_size=4)
         study(client, 8, chunk_size=4)
+        rounds = []
         for _ in range(repeats):
-            times["serial"].append(timed(lambda: study("serial", n)))
+            t_ser, idle = idle_during(lambda: study("serial", n))
+            times["serial"].append(t_ser)
             times["processes(2) warm"].append(timed(lambda: study(pool, n)))
             times["dask(2) warm"].append(timed(lambda: study(client, n)))
+            rounds.append((*(v[-1] for v in times.values()), idle, os.getloadavg()[0]))
     rates = {k: n / min(v) for k, v in times.items()}
     rates["processes(2) cold"] = n / timed(lambda: study("processes", n, workers=2))
     rates["dask(2) cold"] = n / timed(lambda: study("dask", n, workers=2))
-    return rates
+    return rates, rounds
 
 
 def overhead(n: int, repeats: int) -> dict:
@@ -90,7 +131,7 @@ def overhead(n: int, repeats: int) -> dict:
     return {"batched fit+score per trial (direct)": direct / n,
             "same through run_study, per trial": runner / n,
             "runner overhead per trial": (runner - direct) / n,
-            "  of which per-trial SeedSequence+Generator": rng_only / n,
+            "per-trial SeedSequence+Generator (in both above)": rng_only / n,
             "no-op trial through run_study (chunks of 50)": nothing / n}
 
 
@@ -99,9 +140,9 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="paper-size run")
     ap.add_argument("--out", type=Path, default=Path("out/study_throughput"))
     args = ap.parse_args()
-    n, reps = (480, 3) if args.full else (160, 2)
+    n, reps = (480, 5) if args.full else (160, 5)
     load0 = os.getloadavg()[0]
-    rates = throughput(n, reps)
+    rates, rounds = throughput(n, reps)
     ov = overhead(2000 if args.full else 500, 3)
     lines = [f"ML trials ({SETTINGS}, method fast), {n} trials, best of {reps}:"]
     lines += [f"  {k:<22s} {v:8.1f} trials/s" for k, v in rates.items()]
@@ -115,8 +156,12 @@ def main() -> None:
         f"  load average before/after: {load0:.1f} / {os.getloadavg()[0]:.1f} on "
         f"{os.cpu_count()} cores (other processes share them: ratios are only meaningful "
         "on an otherwise idle machine)",
-        "Runner overhead (serial, seconds per trial):",
+        "Rounds (seconds; idle = fraction of all cores idle during the serial run):",
+        "  round  serial  procs(2)  dask(2)  procs/serial  dask/procs  idle  load1",
     ]
+    lines += [f"  {i:5d}  {s:6.2f}  {p:8.2f}  {d:7.2f}  {s / p:12.2f}  {p / d:10.2f}  "
+              f"{idle:4.2f}  {ld:5.1f}" for i, (s, p, d, idle, ld) in enumerate(rounds)]
+    lines += ["Runner overhead (serial, seconds per trial):"]
     lines += [f"  {k:<46s} {v * 1e6:9.1f} us" for k, v in ov.items()]
     text = "\n".join(lines)
     print(text)
