@@ -6,7 +6,8 @@
   (matching pursuit + alternating projection, and for K >= 2 the best K-tuple of
   a few coarse atom subsets with intensities solved linearly), then batched
   bounded Levenberg–Marquardt with the analytic Jacobian and a few deterministic
-  perturbed restarts against the false minima of the clipped cosine's kink.
+  perturbed restarts and kink hops against the false minima of the clipped
+  cosine's kink.
   Deterministic, vectorised over trials: a batch equals a loop of single fits;
 * ``method="multistart"`` -- the paper's baseline: pseudo-random starts refined
   by a quasi-Newton method (L-BFGS-B).

@@ -87,8 +87,10 @@ def fit_ml(
     method : {"fast", "multistart"}
         ``"fast"``: grid matching pursuit + alternating projection (polynomial in K),
         joint bounded Levenberg–Marquardt, ``n_restarts`` deterministic perturbed
-        restarts; batched over trials.  ``"multistart"``: the paper's baseline,
-        ``n_starts`` pseudo-random starts each refined by L-BFGS-B.
+        restarts and (ring/planar arrays, K >= 2) one round of kink hops into the
+        neighbouring smooth cells of the likelihood; batched over trials.
+        ``"multistart"``: the paper's baseline, ``n_starts`` pseudo-random starts
+        each refined by L-BFGS-B.
     rng : Generator, int or None
         Randomness of the multistart starts.  ``"fast"`` is deterministic and
         ignores it.

@@ -16,7 +16,15 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    shallow false minima that the kink of the clipped cosine creates (a
    sub-sensor ~90 deg from a source).  For K <= 2 only fits that ended on a
    kink are restarted; for K >= 3 all (this also repairs wrong configurations).
-4. Fits that end with a source on a kink are polished with that source's
+4. Kink hops (planar arrays of angles, kinked law, K >= 2): each source is
+   moved just past the nearest angle, either way, at which a sub-sensor crosses
+   its 90 deg horizon, and all 2K hops are refined in one batched LM run.  The
+   likelihood is smooth only between such crossings, so with several sources
+   it has shallow local minima in neighbouring cells ~1 CRLB std apart, which
+   the fixed-size restarts step over (measured on a 30-ring at sigma = 0.01:
+   10 % of fits of a K = 4 scene and 0.5 % of fits of random K = 2 scenes ended
+   in one; none after one round of hops).
+5. Fits that end with a source on a kink are polished with that source's
    location held fixed (LM's one-sided Jacobian stalls there otherwise).
 
 Being deterministic, a batch fit equals a loop of single fits.
@@ -27,12 +35,16 @@ from __future__ import annotations
 import numpy as np
 
 from ..crlb import kink_sources
+from ..geometry import wrap_angle
 from ..model import Model
 from .batch import LMOutcome, refine_batch
 from .grid import atoms, grid_step
 from .search import grid_search
 
-__all__ = ["fit_fast", "restart_patterns"]
+__all__ = ["fit_fast", "restart_patterns", "hop_starts"]
+
+#: Kink hops apply from this many sources on (K = 1 has the kink-triggered restarts).
+HOP_MIN_SOURCES = 2
 
 
 def restart_patterns(k: int, d: int, n: int) -> np.ndarray:
@@ -105,7 +117,11 @@ def _restart(
     base = out.x[rows].reshape(rows.size, 1, k, d + 1)
     starts = np.repeat(base, patterns.shape[0], axis=1)
     starts[..., :d] += patterns * delta
-    new = _refine_starts(model, data[rows], starts, max_iter)
+    return _merge(out, rows, _refine_starts(model, data[rows], starts, max_iter))
+
+
+def _merge(out: LMOutcome, rows: np.ndarray, new: LMOutcome) -> LMOutcome:
+    """Replace the fits ``rows`` of ``out`` by ``new`` where it is strictly better."""
     x, chi2 = out.x.copy(), out.chi2.copy()
     conv, nev, stalled = out.converged.copy(), out.n_evaluations.copy(), out.stalled.copy()
     nev[rows] += new.n_evaluations
@@ -114,6 +130,38 @@ def _restart(
     x[sel], chi2[sel], conv[sel] = new.x[better], new.chi2[better], new.converged[better]
     stalled[sel] = new.stalled[better]
     return LMOutcome(x, chi2, conv, nev, stalled)
+
+
+def hop_starts(model: Model, x: np.ndarray) -> np.ndarray:
+    """Kink hops of fits x (T, P) of a planar (angle) model: starts (T, 2K, P).
+
+    Start 2j (2j + 1) moves source j's angle up (down) just past the nearest
+    angle at which some sub-sensor sits on the source's 90 deg horizon, i.e. into
+    the neighbouring cell where the likelihood is a different smooth function.
+    """
+    k = x.shape[1] // 2
+    nrm = model.array.normals
+    phi = np.arctan2(nrm[:, 1], nrm[:, 0])
+    crossings = np.concatenate([phi + np.pi / 2, phi - np.pi / 2])  # (2N,)
+    diff = wrap_angle(crossings - x[:, 0::2, None])  # (T, K, 2N)
+    up = np.where(diff > 1e-9, diff, np.inf).min(axis=-1)  # (T, K)
+    down = np.where(diff < -1e-9, diff, -np.inf).max(axis=-1)
+    eps = 0.05 * np.pi / model.n_sensors  # 5 % of the mean gap between crossings
+    starts = np.repeat(x[:, None, :], 2 * k, axis=1)
+    j = np.arange(k)
+    starts[:, 2 * j, 2 * j] += up + eps
+    starts[:, 2 * j + 1, 2 * j] += down - eps
+    return starts
+
+
+def _kink_hops(model: Model, data: np.ndarray, out: LMOutcome, max_iter: int) -> LMOutcome:
+    """One round of kink hops for every fit (angle models, kinked law, K >= 2)."""
+    k = out.x.shape[1] // (model.n_loc + 1)
+    if model.kind != "angle" or not model.sensitivity.kink or k < HOP_MIN_SOURCES:
+        return out
+    t = out.x.shape[0]
+    starts = hop_starts(model, out.x).reshape(t, 2 * k, k, 2)
+    return _merge(out, np.arange(t), _refine_starts(model, data, starts, max_iter))
 
 
 def fit_fast(
@@ -136,6 +184,7 @@ def fit_fast(
     if n_restarts:
         delta = restart_scale * grid_step(model, grid)
         out = _restart(model, data, out, delta, restart_patterns(k, d, n_restarts), max_iter)
+    out = _kink_hops(model, data, out, max_iter)
     return _kink_polish(model, data, out, max_iter)
 
 
