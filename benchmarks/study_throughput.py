@@ -8,6 +8,11 @@ the CRLB).  Measured side by side:
   and a 2-worker Dask ``LocalCluster`` (processes), each warm (executor started
   and workers imported before the clock starts) -- targets: pool / serial >= 1.6,
   Dask / pool >= 0.8;
+* per round, the CPU time per trial of the study's own processes (main process
+  plus workers, from /proc) and the fraction of the cores left idle: on a machine
+  shared with other jobs the wall-clock ratios measure contention as much as the
+  executors, while the CPU cost per trial shows what each executor adds and gives
+  the best ratio 2 idle cores would allow;
 * the same with the executor started inside ``run_study`` (cold);
 * the runner's own cost per trial (seeds, chunk bookkeeping, stacking, the
   Dataset) next to a batched ML fit: ``run_study`` of ``fast_batched`` trials
@@ -49,6 +54,11 @@ def timed(fn) -> float:
     return time.perf_counter() - t0
 
 
+def study(executor, n, method="fast", trial=ring_estimate, chunk_size=None, **kw):
+    return run_study(trial, {"method": [method]}, n, fixed=SETTINGS, executor=executor,
+                     rng=1, chunk_size=chunk_size, progress=False, **kw)
+
+
 def _cpu_ticks() -> tuple[int, int]:
     """(idle, total) jiffies of all CPUs from /proc/stat ((0, 0) elsewhere)."""
     try:
@@ -59,17 +69,22 @@ def _cpu_ticks() -> tuple[int, int]:
     return v[3] + v[4], sum(v[:8])
 
 
-def idle_during(fn) -> tuple[float, float]:
-    """Wall time of ``fn()`` and the fraction of all cores left idle meanwhile."""
+def _proc_cpu(pid: int) -> float:
+    """CPU seconds (user + system) used so far by process ``pid`` (Linux /proc)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def measured(fn, worker_cpu) -> tuple[float, float, float]:
+    """Run ``fn()``: wall seconds, CPU seconds (this process + ``worker_cpu()``, a
+    callable summing the workers' CPU time) and the fraction of all cores idle."""
     i0, t0 = _cpu_ticks()
+    c0, w0 = time.process_time(), worker_cpu()
     dt = timed(fn)
+    cpu = time.process_time() - c0 + worker_cpu() - w0
     i1, t1 = _cpu_ticks()
-    return dt, (i1 - i0) / (t1 - t0) if t1 > t0 else float("nan")
-
-
-def study(executor, n, method="fast", trial=ring_estimate, chunk_size=None, **kw):
-    return run_study(trial, {"method": [method]}, n, fixed=SETTINGS, executor=executor,
-                     rng=1, chunk_size=chunk_size, progress=False, **kw)
+    return dt, cpu, (i1 - i0) / (t1 - t0) if t1 > t0 else float("nan")
 
 
 def _warm_one(_: int = 0) -> int:
@@ -78,42 +93,44 @@ def _warm_one(_: int = 0) -> int:
     return os.getpid()
 
 
-def _warm_workers(pool, client) -> None:
+def _warm_workers(pool, client) -> set[int]:
     """Make every worker of both pools import the trial and run it once, so no timed
-    round pays a worker's first import (seconds on a busy machine)."""
+    round pays a worker's first import (seconds on a busy machine); the pool's pids."""
     pids: set[int] = set()
     for _ in range(20):
         pids |= set(pool.map(_warm_one, range(8)))
         if len(pids) >= 2:
             break
     client.run(_warm_one)  # on every Dask worker
+    return pids
+
+
+KINDS = ("serial", "processes(2) warm", "dask(2) warm")
 
 
 def throughput(n: int, repeats: int) -> tuple[dict, list]:
     """Trials per second, best of ``repeats`` rounds; each round runs serial, pool and
     Dask back to back so that all three see the same background load.  Also returns
-    per round: the three times, the idle fraction of the cores during the serial run
-    (~0.5 on an idle 2-core machine: the second core is free for a pool) and the load."""
+    per round and executor: (wall s, CPU s of the study's processes, idle fraction of
+    all cores, 1-min load)."""
     from distributed import Client, LocalCluster
 
-    times: dict[str, list[float]] = {"serial": [], "processes(2) warm": [],
-                                     "dask(2) warm": []}
     ctx = multiprocessing.get_context("forkserver")
     with cf.ProcessPoolExecutor(2, mp_context=ctx) as pool, \
             LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                          dashboard_address=None) as cluster, Client(cluster) as client:
         study("serial", 8)  # imports and caches outside the clock
-        _warm_workers(pool, client)
+        pids = _warm_workers(pool, client)
         study(pool, 8, chunk_size=4)
         study(client, 8, chunk_size=4)
-        rounds = []
-        for _ in range(repeats):
-            t_ser, idle = idle_during(lambda: study("serial", n))
-            times["serial"].append(t_ser)
-            times["processes(2) warm"].append(timed(lambda: study(pool, n)))
-            times["dask(2) warm"].append(timed(lambda: study(client, n)))
-            rounds.append((*(v[-1] for v in times.values()), idle, os.getloadavg()[0]))
-    rates = {k: n / min(v) for k, v in times.items()}
+        cpu_of = {"serial": lambda: 0.0,
+                  "processes(2) warm": lambda: sum(_proc_cpu(p) for p in pids),
+                  "dask(2) warm": lambda: sum(client.run(time.process_time).values())}
+        runs = {"serial": lambda: study("serial", n), "processes(2) warm": lambda: study(pool, n),
+                "dask(2) warm": lambda: study(client, n)}
+        rounds = [{k: (*measured(runs[k], cpu_of[k]), os.getloadavg()[0]) for k in KINDS}
+                  for _ in range(repeats)]
+    rates = {k: n / min(r[k][0] for r in rounds) for k in KINDS}
     rates["processes(2) cold"] = n / timed(lambda: study("processes", n, workers=2))
     rates["dask(2) cold"] = n / timed(lambda: study("dask", n, workers=2))
     return rates, rounds
@@ -156,12 +173,26 @@ def main() -> None:
         f"  load average before/after: {load0:.1f} / {os.getloadavg()[0]:.1f} on "
         f"{os.cpu_count()} cores (other processes share them: ratios are only meaningful "
         "on an otherwise idle machine)",
-        "Rounds (seconds; idle = fraction of all cores idle during the serial run):",
-        "  round  serial  procs(2)  dask(2)  procs/serial  dask/procs  idle  load1",
+        f"Rounds ({n} trials each): wall s, CPU ms per trial (the study's own processes), "
+        "idle = fraction of all cores idle meanwhile",
+        "  round  serial: wall  cpu/tr  idle | procs(2): wall  cpu/tr  idle | "
+        "dask(2): wall  cpu/tr  idle | procs/serial  dask/procs  load1",
     ]
-    lines += [f"  {i:5d}  {s:6.2f}  {p:8.2f}  {d:7.2f}  {s / p:12.2f}  {p / d:10.2f}  "
-              f"{idle:4.2f}  {ld:5.1f}" for i, (s, p, d, idle, ld) in enumerate(rounds)]
-    lines += ["Runner overhead (serial, seconds per trial):"]
+    for i, r in enumerate(rounds):
+        cells = "  | ".join(f"{r[k][0]:6.2f}  {1e3 * r[k][1] / n:6.2f}  {r[k][2]:4.2f}"
+                            for k in KINDS)
+        lines.append(f"  {i:5d}  {cells}  | {r[KINDS[0]][0] / r[KINDS[1]][0]:12.2f}  "
+                     f"{r[KINDS[1]][0] / r[KINDS[2]][0]:10.2f}  {r[KINDS[2]][3]:5.1f}")
+    cpu = {k: float(np.median([r[k][1] for r in rounds])) / n for k in KINDS}
+    lines += [
+        "CPU per trial (median over rounds; independent of other programs' load): "
+        + ", ".join(f"{k.split()[0]} {1e3 * v:.2f} ms" for k, v in cpu.items()),
+        f"  => on 2 otherwise idle cores, CPU-bound: processes(2)/serial <= "
+        f"{2 * cpu['serial'] / cpu['processes(2) warm']:.2f}, dask(2)/processes(2) ~ "
+        f"{cpu['processes(2) warm'] / cpu['dask(2) warm']:.2f} (a bound from CPU cost, "
+        "not a measured rate)",
+        "Runner overhead (serial, seconds per trial):",
+    ]
     lines += [f"  {k:<46s} {v * 1e6:9.1f} us" for k, v in ov.items()]
     text = "\n".join(lines)
     print(text)
