@@ -57,3 +57,12 @@ def test_image_bad_input_exits_2(scene, capsys, extra, match):
     assert main(["image", str(scene), *extra]) == 2
     err = capsys.readouterr().err
     assert err.startswith("olsbayes: error:") and match in err and err.count("\n") == 1
+
+
+def test_image_mode_only_and_two_level(scene, capsys):
+    assert main(["image", str(scene), "--json", "--n-samples", "0"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["sampler"] == "mode-only" and out["n_draws"] == 0 and out["sd"][0] is None
+    assert main(["image", str(scene), "--prior", "two-level", "--n-samples", "0"]) == 0
+    text = capsys.readouterr().out
+    assert "MAP search" in text and "local optimum True" in text

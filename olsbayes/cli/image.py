@@ -51,10 +51,13 @@ register_section(Section(
         "prior": Field("str", default="bounded", choices=PRIORS, doc="intensity prior"),
         "i_max": Field("float", default=1.0, positive=True, doc="upper intensity bound"),
         "level": Field("float", default=0.9, low=0.01, high=0.999, doc="interval credibility"),
-        "n_samples": Field("int", default=200, low=4, high=1_000_000, doc="draws per chain"),
+        "n_samples": Field("int", low=0, high=1_000_000,
+                           doc="draws per chain (default 200; 0 = posterior mode only)"),
         "n_chains": Field("int", default=4, low=1, high=256, doc="sampler chains"),
         "sampler": Field("str", default="gibbs", choices=SAMPLERS, doc="box-prior sampler"),
         "neighbours": Field("int", default=4, low=0, high=64, doc="pair moves per source"),
+        "prior_bright": Field("float", default=0.5, low=1e-9, high=1 - 1e-9,
+                              doc="two-level prior: probability that a source is bright"),
     },
 ))
 
@@ -69,7 +72,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--i-max", type=float, default=None, metavar="I",
                    help="upper bound of the intensities (default 1)")
     p.add_argument("--n-samples", type=int, default=None, metavar="S",
-                   help="draws per chain (default 200)")
+                   help="draws per chain (default 200; 0 = posterior mode only, no sampling; "
+                        "the two-level prior is MAP only)")
     p.add_argument("--figure", type=Path, default=None, metavar="PNG",
                    help="write the sky-map panels (sphere arrays) to this PNG file")
     add_seed_arg(p, help="seed of the sampler and of a [data] simulation")
@@ -101,11 +105,12 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, np.ndarray, np.ndarray, np.n
     opts = {
         "prior": args.prior or sec.get("prior", "bounded"),
         "i_max": args.i_max if args.i_max is not None else sec.get("i_max", 1.0),
-        "n_samples": args.n_samples if args.n_samples is not None else sec.get("n_samples", 200),
+        "n_samples": args.n_samples if args.n_samples is not None else sec.get("n_samples"),
         "level": sec.get("level", 0.9),
         "n_chains": sec.get("n_chains", 4),
         "sampler": sec.get("sampler", "gibbs"),
         "neighbours": sec.get("neighbours", 4),
+        "prior_bright": sec.get("prior_bright", 0.5),
     }
     return model, data, np.asarray(dirs, dtype=float), truth, opts
 
@@ -116,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
         if model.kind != "lonlat":
             raise InputError("--figure draws sky maps and needs a sphere array")
         output_dir(args.figure.parent if str(args.figure.parent) else Path("."), "--figure")
+    if opts["prior"] == "two-level" and truth is not None and truth.shape == (dirs.shape[0],):
+        opts["reference"] = truth  # the search reports the [scene]'s log posterior too
     res = image(model, data, dirs, rng=args.seed, **opts)
     payload: dict[str, Any] = {
         **res.summary(),
@@ -143,6 +150,11 @@ def run(args: argparse.Namespace) -> int:
     rows = [[k, res.mean[k], res.sd[k], res.lower[k], res.upper[k], res.null_fraction[k]]
             for k in range(res.n_sources)]
     lines.append(format_table(header, rows, 4))
+    if res.search is not None:
+        lines.append(f"MAP search: log posterior {s['log_posterior']:.6g} after {s['moves']} "
+                     f"moves, local optimum {s['local_optimum']}; [scene] log posterior "
+                     f"{s['reference_log_posterior']}, better than the scene found: "
+                     f"{s['reference_better']}")
     if "error_sd" in payload:
         lines.append(f"error sd vs [scene] intensities: {payload['error_sd']:.4g}; "
                      f"interval coverage {payload['coverage']:.3f}")

@@ -2,10 +2,13 @@
 
 With the directions fixed, Eq. 1 is linear in the intensities, ``s = A I +
 noise``; :func:`image` returns their posterior under a Gaussian (closed form,
-with evidence), nonnegative, bounded or sparse (spike-and-slab) prior, plus the
-design matrix's rank, conditioning and null space -- what the array cannot see.
+with evidence), nonnegative, bounded, sparse (spike-and-slab) or two-level
+prior, plus the design matrix's rank, conditioning and null space -- what the array cannot see;
+``n_samples=0`` returns the mode only, and ``prior="two-level"`` (each
+intensity 0 or i_max) the MAP scene of a local search.
 """
 
+from .binary import BinaryMap, two_level_log_posterior, two_level_map
 from .core import PRIORS, SAMPLERS, image
 from .design import Design, analyse_design, check_directions, design_matrix
 from .gaussian import GaussianPosterior, gaussian_posterior
@@ -29,6 +32,9 @@ __all__ = [
     "truncnorm_1d",
     "GibbsSamples",
     "gibbs_intensities",
+    "BinaryMap",
+    "two_level_map",
+    "two_level_log_posterior",
     "hpd_interval",
     "split_rhat",
 ]

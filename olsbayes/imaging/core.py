@@ -13,6 +13,7 @@ from .._validation import as_rng, finite_array, integer, positive_float
 from ..errors import ConvergenceWarning, InputError, NullSpaceWarning
 from ..geometry import lonlat_to_unit
 from ..model import Model
+from .binary import sparse_relaxation, two_level_map
 from .design import analyse_design, check_directions, design_matrix
 from .gaussian import gaussian_posterior
 from .result import ImageResult, hpd_interval, split_rhat
@@ -21,7 +22,7 @@ from .truncated import sample_truncated_gaussian
 
 __all__ = ["image", "PRIORS", "SAMPLERS"]
 
-PRIORS = ("gaussian", "nonnegative", "bounded", "sparse")
+PRIORS = ("gaussian", "nonnegative", "bounded", "sparse", "two-level")
 SAMPLERS = ("hmc", "gibbs")
 
 
@@ -48,7 +49,7 @@ def image(
     rng: np.random.Generator | int | None = None,
     *,
     level: float = 0.9,
-    n_samples: int = 200,
+    n_samples: int | None = None,
     n_chains: int = 4,
     n_burn: int = 100,
     sampler: str = "gibbs",
@@ -56,6 +57,8 @@ def image(
     prior_mean: float | None = None,
     prior_sd: float | None = None,
     null_warn: float = 0.1,
+    prior_bright: float = 0.5,
+    reference: np.ndarray | None = None,
 ) -> ImageResult:
     """Posterior of the intensities of sources at known directions.
 
@@ -71,11 +74,14 @@ def image(
     directions : array_like, shape (K, d) (or (K,) for a ring)
         Known source locations: ring angles, sphere (longitude, latitude) in
         rad, or plate positions.
-    prior : {"bounded", "nonnegative", "gaussian", "sparse"}
+    prior : {"bounded", "nonnegative", "gaussian", "sparse", "two-level"}
         ``"bounded"``: I uniform on [0, i_max]; ``"nonnegative"``: flat on
         I >= 0; ``"gaussian"``: independent N(prior_mean, prior_sd^2), closed
         form with evidence; ``"sparse"``: spike-and-slab
-        ``(1 - w) delta_0 + w U(0, i_max)`` with w ~ Beta(1, 1).
+        ``(1 - w) delta_0 + w U(0, i_max)`` with w ~ Beta(1, 1);
+        ``"two-level"``: each I is 0 or i_max, bright with probability
+        ``prior_bright`` -- MAP only (a local search, see
+        :mod:`olsbayes.imaging.binary`; ``result.search`` says how it ended).
     i_max : float
         Upper bound of the intensities (> 0); the scale of the Gaussian prior.
     rng : Generator or seed, optional
@@ -84,6 +90,13 @@ def image(
         Credibility of the intervals (default 0.9).
     n_samples, n_chains, n_burn : int
         Draws kept per chain, chains, discarded trajectories/sweeps.
+        ``n_samples=0`` is the fast mode-only path for the box priors: the
+        posterior mode (bounded / nonnegative least squares) and the design
+        diagnostics, no sampling; ``mean`` is then the mode and ``sd``,
+        ``lower``, ``upper`` and ``rhat`` are NaN (no spread is computed: a
+        Gaussian approximation at a mode on the box walls would be wrong).
+        Default 200 (0 for ``"two-level"``, which has no sampler; the
+        Gaussian prior is closed form and ignores it; ``"sparse"`` needs >= 4).
     sampler : {"gibbs", "hmc"}
         For the box priors: Gibbs (single-site plus neighbour-pair moves) or
         exact HMC (Pakman & Paninski; exact but can need ~1e4 wall bounces per
@@ -95,6 +108,12 @@ def image(
         Gaussian prior (default i_max / 2 and i_max / 2).
     null_warn : float
         Warn :class:`NullSpaceWarning` when nullity / K exceeds this fraction.
+    prior_bright : float in (0, 1)
+        ``"two-level"``: prior probability that a source is bright.
+    reference : array_like, shape (K,), optional
+        ``"two-level"``: a known scene (e.g. the truth of a simulation) whose
+        log posterior ``result.search`` reports next to the one found, so a
+        search failure (reference better than the scene found) is visible.
 
     Returns
     -------
@@ -116,7 +135,7 @@ def image(
             f"got {y.shape[0]}"
         )
     i_max = positive_float("i_max", i_max)
-    n_samples = integer("n_samples", n_samples, low=4)
+    n_samples = _n_samples(prior, n_samples)
     n_chains = integer("n_chains", n_chains, low=1)
     n_burn = integer("n_burn", n_burn, low=0)
     neighbours = integer("neighbours", neighbours, low=0)
@@ -136,6 +155,14 @@ def image(
         return _gaussian(a, y, model.sigma, design, i_max, level, prior_mean, prior_sd)
     hi = np.inf if prior == "nonnegative" else i_max
     mode = lsq_linear(a, y, bounds=(0.0, hi), method="bvls").x
+    if prior == "two-level":
+        return _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, reference,
+                          neighbours)
+    if n_samples == 0:
+        nan = np.full(k, np.nan)
+        return ImageResult(prior=prior, directions=design.directions, mean=mode, mode=mode,
+                           sd=nan, lower=nan, upper=nan, level=level, design=design,
+                           rhat=float("nan"), sampler="mode-only")
     x0 = _starts(mode, n_chains, hi, i_max, gen)
     if prior == "sparse" or sampler == "gibbs":
         spike = prior == "sparse"
@@ -150,12 +177,58 @@ def image(
     return _from_draws(prior, draws, mode, design, level, hi, acc, used)
 
 
+def _n_samples(prior, n_samples):
+    if n_samples is None:
+        return 0 if prior == "two-level" else 200
+    n = integer("n_samples", n_samples, low=0)
+    if 0 < n < 4 or (n == 0 and prior == "sparse") or (n > 0 and prior == "two-level"):
+        need = {"sparse": ">= 4", "two-level": "0 (MAP only, no sampler)"}
+        need = need.get(prior, "0 (mode only) or >= 4")
+        raise InputError(f"n_samples must be {need} for prior {prior!r}; got {n_samples!r}")
+    return n
+
+
+def _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, reference, neighbours):
+    p = positive_float("prior_bright", prior_bright, upper=1.0)
+    if p >= 1.0:
+        raise InputError(f"prior_bright must be in (0, 1); got {prior_bright!r}")
+    ref = None
+    if reference is not None:
+        ref = finite_array("reference", reference, ndim=1)
+        if ref.shape != mode.shape:
+            raise InputError(f"reference must have shape {mode.shape}; got {ref.shape}")
+    groups = neighbour_groups(model, loc, 2 * neighbours) if neighbours else None
+    best = None
+    for start in (mode, sparse_relaxation(a, y, model.sigma, i_max)):
+        run = two_level_map(a, y, model.sigma, i_max, start, p_bright=p, groups=groups,
+                            reference=ref)
+        if best is None or run.log_posterior > best.log_posterior:
+            best = run
+    nan = np.full(mode.shape[0], np.nan)
+    return ImageResult(prior="two-level", directions=design.directions, mean=best.x,
+                       mode=best.x, sd=nan, lower=nan, upper=nan, level=level, design=design,
+                       rhat=float("nan"), sampler="map-search", search=best)
+
+
 def neighbour_pairs(model: Model, loc: np.ndarray, n: int) -> np.ndarray:
     """Unique pairs (k, l), shape (P, 2), of each source with its n nearest sources."""
     k = loc.shape[0]
     n = min(n, k - 1)
     if n <= 0:
         return np.zeros((0, 2), dtype=int)
+    near = _nearest(model, loc, n)
+    pairs = np.sort(np.column_stack([np.repeat(np.arange(k), n), near.ravel()]), axis=1)
+    return np.unique(pairs, axis=0)
+
+
+def neighbour_groups(model: Model, loc: np.ndarray, n: int) -> np.ndarray:
+    """Each source with its n nearest sources, shape (K, min(n, K - 1) + 1)."""
+    n = min(n, loc.shape[0] - 1)
+    return np.column_stack([np.arange(loc.shape[0]), _nearest(model, loc, n)])
+
+
+def _nearest(model: Model, loc: np.ndarray, n: int) -> np.ndarray:
+    """Indices, shape (K, n), of each source's n nearest other sources."""
     if model.kind == "position":
         d2 = np.sum((loc[:, None, :] - loc[None, :, :]) ** 2, axis=-1)
     else:  # angular distance through unit vectors (1 - cos)
@@ -165,9 +238,7 @@ def neighbour_pairs(model: Model, loc: np.ndarray, n: int) -> np.ndarray:
             v = lonlat_to_unit(loc[:, 0], loc[:, 1])
         d2 = 1.0 - v @ v.T
     np.fill_diagonal(d2, np.inf)
-    near = np.argsort(d2, axis=1, kind="stable")[:, :n]
-    pairs = np.sort(np.column_stack([np.repeat(np.arange(k), n), near.ravel()]), axis=1)
-    return np.unique(pairs, axis=0)
+    return np.argsort(d2, axis=1, kind="stable")[:, :n]
 
 
 def _starts(mode, n_chains, hi, i_max, gen):

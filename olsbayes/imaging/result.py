@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .binary import BinaryMap
 from .design import Design
 
 __all__ = ["ImageResult", "hpd_interval", "split_rhat"]
@@ -79,7 +80,8 @@ class ImageResult:
     mode : ndarray, shape (K,)
         A posterior mode: the Gaussian mean; bounded least squares for the box
         priors (not unique when the design has a null space); for ``"sparse"``
-        the posterior median (a pixel is dark if P(I = 0) > 1/2).
+        the posterior median (a pixel is dark if P(I = 0) > 1/2); for
+        ``"two-level"`` the MAP scene found by the local search.
     sd : ndarray, shape (K,)
         Posterior standard deviations.
     lower, upper : ndarray, shape (K,)
@@ -100,7 +102,13 @@ class ImageResult:
     acceptance : float
         HMC acceptance rate (1 for Gibbs and the closed form).
     sampler : str
-        ``"closed-form"``, ``"hmc"`` or ``"gibbs"``.
+        ``"closed-form"``, ``"hmc"``, ``"gibbs"``, ``"mode-only"`` (box priors
+        with ``n_samples=0``: mean = mode, sd/intervals/rhat NaN) or
+        ``"map-search"`` (two-level prior: mean = mode = the MAP scene found,
+        sd/intervals/rhat NaN).
+    search : BinaryMap or None
+        Two-level prior: how the MAP search ended (log posterior, moves, local
+        optimum, and the reference scene's log posterior when one was given).
     """
 
     prior: str
@@ -118,6 +126,7 @@ class ImageResult:
     rhat: float = 1.0
     acceptance: float = 1.0
     sampler: str = "closed-form"
+    search: BinaryMap | None = None
 
     @property
     def n_sources(self) -> int:
@@ -156,4 +165,14 @@ class ImageResult:
             "acceptance": self.acceptance,
             "sampler": self.sampler,
             "n_draws": 0 if self.samples is None else int(np.prod(self.samples.shape[:2])),
+            **self._search_summary(),
         }
+
+    def _search_summary(self) -> dict:
+        if self.search is None:
+            return {}
+        s = self.search
+        return {"log_posterior": s.log_posterior, "local_optimum": s.local_optimum,
+                "moves": s.n_flips + s.n_swaps + s.n_group_moves,
+                "reference_log_posterior": s.reference_log_posterior,
+                "reference_better": s.reference_better}
