@@ -110,7 +110,7 @@ def plot(maps, kink, path) -> None:
     ax.set_xticks(np.arange(len(kink.sigma)) + 0.4, [f"SNR {1 / s:g}" for s in kink.sigma.values])
     ax.set_ylabel("failure rate")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_title("source on the costn kink (solid; KinkWarning) vs not (pale)", fontsize=10)
+    ax.set_title("a source on the costn kink\n(solid: KinkWarning) vs off it (pale)", fontsize=10)
     ax.legend(fontsize=7)
     fig.suptitle(f"Stability on a ring of N = {N} (hatched: Fisher matrix singular "
                  "-> ResolutionWarning)")
