@@ -11,6 +11,7 @@ intensity 0 or i_max) the MAP scene of a local search.
 from .binary import BinaryMap, two_level_log_posterior, two_level_map
 from .core import PRIORS, SAMPLERS, image
 from .design import Design, analyse_design, check_directions, design_matrix
+from .eigen import eigen_gibbs
 from .gaussian import GaussianPosterior, gaussian_posterior
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import GibbsSamples, gibbs_intensities
@@ -30,6 +31,7 @@ __all__ = [
     "TruncatedSamples",
     "sample_truncated_gaussian",
     "truncnorm_1d",
+    "eigen_gibbs",
     "GibbsSamples",
     "gibbs_intensities",
     "BinaryMap",

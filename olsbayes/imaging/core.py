@@ -15,6 +15,7 @@ from ..geometry import lonlat_to_unit
 from ..model import Model
 from .binary import sparse_relaxation, two_level_map
 from .design import analyse_design, check_directions, design_matrix
+from .eigen import eigen_gibbs
 from .gaussian import gaussian_posterior
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import gibbs_intensities
@@ -23,7 +24,7 @@ from .truncated import sample_truncated_gaussian
 __all__ = ["image", "PRIORS", "SAMPLERS"]
 
 PRIORS = ("gaussian", "nonnegative", "bounded", "sparse", "two-level")
-SAMPLERS = ("hmc", "gibbs")
+SAMPLERS = ("hmc", "gibbs", "eigen")
 
 
 def _check_options(prior, sampler, level, null_warn):
@@ -97,8 +98,10 @@ def image(
         Gaussian approximation at a mode on the box walls would be wrong).
         Default 200 (0 for ``"two-level"``, which has no sampler; the
         Gaussian prior is closed form and ignores it; ``"sparse"`` needs >= 4).
-    sampler : {"gibbs", "hmc"}
-        For the box priors: Gibbs (single-site plus neighbour-pair moves) or
+    sampler : {"gibbs", "hmc", "eigen"}
+        For the box priors: Gibbs (single-site plus neighbour-pair moves),
+        ``"eigen"`` (single-site plus exact moves along every eigenvector of
+        ``A^T A``, which include the null space; :mod:`olsbayes.imaging.eigen`) or
         exact HMC (Pakman & Paninski; exact but can need ~1e4 wall bounces per
         trajectory on large ill-posed grids).  The sparse prior always uses Gibbs.
     neighbours : int
@@ -171,6 +174,10 @@ def image(
         run = gibbs_intensities(a, y, model.sigma, hi, x0, n_samples, gen, n_burn=n_burn,
                                 spike=spike, pairs=neighbour_pairs(model, loc, neighbours))
         draws, acc, used = run.samples, 1.0, "gibbs"
+    elif sampler == "eigen":
+        run = eigen_gibbs(a.T @ a / model.sigma**2, a.T @ y / model.sigma**2, np.zeros(k),
+                          np.full(k, hi), x0, n_samples, gen, n_burn=n_burn)
+        draws, acc, used = run.samples, 1.0, "eigen"
     else:
         draws, acc = _hmc(a, y, model.sigma, hi, i_max, x0, n_samples, n_burn, gen, design)
         used = "hmc"
