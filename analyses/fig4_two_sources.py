@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import os
 
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # small batched BLAS calls: threads only contend
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import argparse  # noqa: E402
