@@ -136,3 +136,11 @@ def test_two_level_bad_input(sphere_problem, kwargs, match):
     model, dirs, _, y, _ = sphere_problem
     with pytest.raises(InputError, match=match):
         image(model, y, dirs, prior="two-level", **kwargs)
+
+
+def test_search_stops_at_max_moves_and_says_so(sphere_problem):
+    model, _, a, y, _ = sphere_problem
+    groups = np.array([[0, 1, 2, 5, 6], [3, 4, 7, 8, 9]])
+    run = two_level_map(a, y, model.sigma, 2.0, np.full(10, 2.0), groups=groups, max_moves=1)
+    assert not run.local_optimum and run.n_flips + run.n_swaps + run.n_group_moves == 1
+    assert run.log_posterior > run.start_log_posterior

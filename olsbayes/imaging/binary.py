@@ -171,7 +171,7 @@ def two_level_map(
     n_flips = n_swaps = n_group = 0
     inv2s2 = 0.5 / sigma**2
     local = False
-    while n_flips + n_swaps < max_moves:
+    while n_flips + n_swaps + n_group < max_moves:
         d = np.where(s, -i_max, i_max)  # change of each intensity if flipped
         flip = (2.0 * d * c - d**2 * gd) * inv2s2 + np.where(s, -prior_gain, prior_gain)
         j = int(np.argmax(flip))
