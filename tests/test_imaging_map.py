@@ -144,3 +144,14 @@ def test_search_stops_at_max_moves_and_says_so(sphere_problem):
     run = two_level_map(a, y, model.sigma, 2.0, np.full(10, 2.0), groups=groups, max_moves=1)
     assert not run.local_optimum and run.n_flips + run.n_swaps + run.n_group_moves == 1
     assert run.log_posterior > run.start_log_posterior
+
+
+def test_two_level_restarts_are_reproducible_and_never_worse(sphere_problem):
+    model, dirs, a, y, truth = sphere_problem
+    plain = image(model, y, dirs, prior="two-level", i_max=2.0, reference=truth)
+    r1 = image(model, y, dirs, prior="two-level", i_max=2.0, restarts=5, rng=3)
+    r2 = image(model, y, dirs, prior="two-level", i_max=2.0, restarts=5, rng=3)
+    np.testing.assert_array_equal(r1.mode, r2.mode)
+    assert r1.search.log_posterior >= plain.search.log_posterior - 1e-9
+    with pytest.raises(InputError, match="restarts"):
+        image(model, y, dirs, prior="two-level", restarts=-1)

@@ -58,6 +58,8 @@ register_section(Section(
         "neighbours": Field("int", default=4, low=0, high=64, doc="pair moves per source"),
         "prior_bright": Field("float", default=0.5, low=1e-9, high=1 - 1e-9,
                               doc="two-level prior: probability that a source is bright"),
+        "restarts": Field("int", default=0, low=0, high=10_000,
+                          doc="two-level prior: extra randomly rounded search starts"),
     },
 ))
 
@@ -111,6 +113,7 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, np.ndarray, np.ndarray, np.n
         "sampler": sec.get("sampler", "gibbs"),
         "neighbours": sec.get("neighbours", 4),
         "prior_bright": sec.get("prior_bright", 0.5),
+        "restarts": sec.get("restarts", 0),
     }
     return model, data, np.asarray(dirs, dtype=float), truth, opts
 

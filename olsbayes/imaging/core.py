@@ -60,6 +60,7 @@ def image(
     null_warn: float = 0.1,
     prior_bright: float = 0.5,
     reference: np.ndarray | None = None,
+    restarts: int = 0,
 ) -> ImageResult:
     """Posterior of the intensities of sources at known directions.
 
@@ -117,6 +118,11 @@ def image(
         ``"two-level"``: a known scene (e.g. the truth of a simulation) whose
         log posterior ``result.search`` reports next to the one found, so a
         search failure (reference better than the scene found) is visible.
+    restarts : int
+        ``"two-level"``: extra searches, each from the L1 relaxation rounded at
+        random (a source starts bright with probability relaxed value / i_max,
+        drawn from ``rng``); the best local optimum is kept.  Fewer search
+        failures where the design has a large null space, ~20 ms CPU each on Fig. 2.
 
     Returns
     -------
@@ -159,8 +165,9 @@ def image(
     hi = np.inf if prior == "nonnegative" else i_max
     mode = lsq_linear(a, y, bounds=(0.0, hi), method="bvls").x
     if prior == "two-level":
+        restarts = integer("restarts", restarts, low=0)
         return _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, reference,
-                          neighbours)
+                          neighbours, restarts, gen)
     if n_samples == 0:
         nan = np.full(k, np.nan)
         return ImageResult(prior=prior, directions=design.directions, mean=mode, mode=mode,
@@ -195,7 +202,8 @@ def _n_samples(prior, n_samples):
     return n
 
 
-def _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, reference, neighbours):
+def _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, reference, neighbours,
+               restarts, gen):
     p = positive_float("prior_bright", prior_bright, upper=1.0)
     if p >= 1.0:
         raise InputError(f"prior_bright must be in (0, 1); got {prior_bright!r}")
@@ -206,7 +214,11 @@ def _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, refer
             raise InputError(f"reference must have shape {mode.shape}; got {ref.shape}")
     groups = neighbour_groups(model, loc, 2 * neighbours) if neighbours else None
     best = None
-    for start in (mode, sparse_relaxation(a, y, model.sigma, i_max)):
+    relaxed = sparse_relaxation(a, y, model.sigma, i_max)
+    starts = [mode, relaxed] + [
+        i_max * (gen.random(relaxed.shape[0]) < relaxed / i_max) for _ in range(restarts)
+    ]
+    for start in starts:
         run = two_level_map(a, y, model.sigma, i_max, start, p_bright=p, groups=groups,
                             reference=ref)
         if best is None or run.log_posterior > best.log_posterior:
