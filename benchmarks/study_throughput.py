@@ -108,11 +108,11 @@ def _warm_workers(pool, client) -> set[int]:
 KINDS = ("serial", "processes(2) warm", "dask(2) warm")
 
 
-def throughput(n: int, repeats: int) -> tuple[dict, list]:
+def throughput(n: int, repeats: int) -> tuple[dict, list, dict]:
     """Trials per second, best of ``repeats`` rounds; each round runs serial, pool and
     Dask back to back so that all three see the same background load.  Also returns
     per round and executor: (wall s, CPU s of the study's processes, idle fraction of
-    all cores, 1-min load)."""
+    all cores, 1-min load), and the seconds per task of a no-op chunk on each pool."""
     from distributed import Client, LocalCluster
 
     ctx = multiprocessing.get_context("forkserver")
@@ -130,10 +130,14 @@ def throughput(n: int, repeats: int) -> tuple[dict, list]:
                 "dask(2) warm": lambda: study(client, n)}
         rounds = [{k: (*measured(runs[k], cpu_of[k]), os.getloadavg()[0]) for k in KINDS}
                   for _ in range(repeats)]
+        # the executors' own cost per task: 64 one-trial chunks of a no-op trial
+        per_task = {name: min(timed(lambda: study(ex, 64, trial=noop, chunk_size=1))
+                              for _ in range(3)) / 64
+                    for name, ex in (("processes(2)", pool), ("dask(2)", client))}
     rates = {k: n / min(r[k][0] for r in rounds) for k in KINDS}
     rates["processes(2) cold"] = n / timed(lambda: study("processes", n, workers=2))
     rates["dask(2) cold"] = n / timed(lambda: study("dask", n, workers=2))
-    return rates, rounds
+    return rates, rounds, per_task
 
 
 def overhead(n: int, repeats: int) -> dict:
@@ -159,7 +163,7 @@ def main() -> None:
     args = ap.parse_args()
     n, reps = (480, 5) if args.full else (160, 5)
     load0 = os.getloadavg()[0]
-    rates, rounds = throughput(n, reps)
+    rates, rounds, per_task = throughput(n, reps)
     ov = overhead(2000 if args.full else 500, 3)
     lines = [f"ML trials ({SETTINGS}, method fast), {n} trials, best of {reps}:"]
     lines += [f"  {k:<22s} {v:8.1f} trials/s" for k, v in rates.items()]
@@ -191,6 +195,8 @@ def main() -> None:
         f"{2 * cpu['serial'] / cpu['processes(2) warm']:.2f}, dask(2)/processes(2) ~ "
         f"{cpu['processes(2) warm'] / cpu['dask(2) warm']:.2f} (a bound from CPU cost, "
         "not a measured rate)",
+        "Cost per task (64 one-trial chunks of a no-op trial, best of 3): "
+        + ", ".join(f"{k} {1e3 * v:.2f} ms" for k, v in per_task.items()),
         "Runner overhead (serial, seconds per trial):",
     ]
     lines += [f"  {k:<46s} {v * 1e6:9.1f} us" for k, v in ov.items()]
