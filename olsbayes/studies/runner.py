@@ -195,7 +195,8 @@ def run_study(
         so results do not depend on the executor, workers or ``chunk_size``.
     chunk_size : int, optional
         Trials per task (all from one cell); default spreads the work in about
-        eight tasks per worker, at most 1000 trials each.
+        eight tasks per worker (four on Dask, whose tasks cost more to dispatch),
+        at most 1000 trials each.
     progress : bool
         Show a tqdm bar over trials (on stderr).
 
@@ -260,7 +261,8 @@ def _execute(trial, g, fixed_s, n_trials, entropy, todo, ckpt, records, executor
     try:
         _check_picklable(trial, backend.name)
         size = chunk_size or max(1, min(1000, n_trials,
-                                        math.ceil(n_todo / (8 * backend.n_workers))))
+                                        math.ceil(n_todo / (backend.chunks_per_worker
+                                                            * backend.n_workers))))
         queue = _chunks(todo, size)[::-1]
         window = max(2, 2 * backend.n_workers)
         pending: list = []
