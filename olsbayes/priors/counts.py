@@ -7,6 +7,7 @@ the business of :class:`~olsbayes.priors.ScenePrior` (see its Notes on K!).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,13 +18,14 @@ from ..errors import InputError
 __all__ = ["CountPrior", "PoissonCount", "UniformCount"]
 
 
-class CountPrior:
+class CountPrior(ABC):
     """Base class: a probability mass function on ``0..k_max``."""
 
     k_max: int
 
-    def _log_weights(self) -> np.ndarray:  # pragma: no cover - overridden
-        raise NotImplementedError
+    @abstractmethod
+    def _log_weights(self) -> np.ndarray:
+        """Unnormalised log masses of 0..k_max, shape (k_max + 1,)."""
 
     @property
     def support(self) -> np.ndarray:

@@ -17,6 +17,7 @@ written into configuration files and result metadata.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +44,7 @@ def _finite_bound(name: str, value: object) -> float:
     return float(arr)
 
 
-class Prior:
+class Prior(ABC):
     """Base class of the 1-D priors (see the module docstring).
 
     Subclasses define ``lower``, ``upper``, ``_log_pdf(x)``, ``_cdf(x)`` and
@@ -55,12 +56,14 @@ class Prior:
     flat: bool = False
 
     @property
-    def lower(self) -> float:  # pragma: no cover - overridden
-        raise NotImplementedError
+    @abstractmethod
+    def lower(self) -> float:
+        """Lower end of the support."""
 
     @property
-    def upper(self) -> float:  # pragma: no cover - overridden
-        raise NotImplementedError
+    @abstractmethod
+    def upper(self) -> float:
+        """Upper end of the support."""
 
     @property
     def support(self) -> tuple[float, float]:
@@ -111,14 +114,17 @@ class Prior:
         return None
 
     # subclass hooks ------------------------------------------------------------
-    def _log_pdf(self, x: np.ndarray) -> np.ndarray:  # pragma: no cover
-        raise NotImplementedError
+    @abstractmethod
+    def _log_pdf(self, x: np.ndarray) -> np.ndarray:
+        """log density inside the support."""
 
-    def _cdf(self, x: np.ndarray) -> np.ndarray:  # pragma: no cover
-        raise NotImplementedError
+    @abstractmethod
+    def _cdf(self, x: np.ndarray) -> np.ndarray:
+        """CDF inside the support."""
 
-    def _ppf(self, u: np.ndarray) -> np.ndarray:  # pragma: no cover
-        raise NotImplementedError
+    @abstractmethod
+    def _ppf(self, u: np.ndarray) -> np.ndarray:
+        """Inverse CDF for u in (0, 1)."""
 
 
 @dataclass(frozen=True)
