@@ -69,22 +69,27 @@ class Model:
         self._positions_t = (
             None if array.positions is None else np.ascontiguousarray(array.positions.T)
         )
+        # Layout constants, fixed by the (read-only) array: cached because the
+        # fitters' inner loops ask for them thousands of times per fit.
+        self._kind = array.source_kind
+        self._n_loc = array.n_source_params
+        self._n_sensors = array.n_sensors
 
     # -- layout -----------------------------------------------------------------
     @property
     def n_sensors(self) -> int:
         """Number N of sub-sensors."""
-        return self.array.n_sensors
+        return self._n_sensors
 
     @property
     def kind(self) -> str:
         """Source space: ``"angle"``, ``"lonlat"`` or ``"position"``."""
-        return self.array.source_kind
+        return self._kind
 
     @property
     def n_loc(self) -> int:
         """Location parameters per source (1, 2 or 3)."""
-        return self.array.n_source_params
+        return self._n_loc
 
     def n_params(self, n_sources: int) -> int:
         """Length of the flat parameter vector for ``n_sources`` sources."""
@@ -92,13 +97,14 @@ class Model:
 
     def n_sources_of(self, params: np.ndarray) -> int:
         """Number of sources K encoded by the last axis of ``params``."""
-        p = np.shape(params)[-1] if np.ndim(params) else -1
-        if p < 0 or p % (self.n_loc + 1):
+        shape = params.shape if isinstance(params, np.ndarray) else np.shape(params)
+        p, d1 = (shape[-1] if shape else -1), self._n_loc + 1
+        if p < 0 or p % d1:
             raise InputError(
-                f"params must have last axis a multiple of {self.n_loc + 1} "
-                f"({_LOC_NAMES[self.kind] + ('I',)} per source); got shape {np.shape(params)}"
+                f"params must have last axis a multiple of {d1} "
+                f"({_LOC_NAMES[self.kind] + ('I',)} per source); got shape {shape}"
             )
-        return p // (self.n_loc + 1)
+        return p // d1
 
     def param_names(self, n_sources: int) -> list[str]:
         """Names such as ``theta[0], I[0], theta[1], I[1]`` in layout order."""
@@ -150,16 +156,20 @@ class Model:
     # -- kernel -----------------------------------------------------------------
     def _split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         k = self.n_sources_of(x)
-        blocks = x.reshape(x.shape[:-1] + (k, self.n_loc + 1))
+        blocks = x.reshape(x.shape[:-1] + (k, self._n_loc + 1))
         return blocks[..., :-1], blocks[..., -1]
 
     def _directions(self, loc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Unit vectors (..., K, D) and tangents d u / d loc (..., K, d, D)."""
-        if self.kind == "angle":
+        if self._kind == "angle":
             th = loc[..., 0]
             c, s = np.cos(th), np.sin(th)
-            u = np.stack([c, s], axis=-1)
-            return u, np.stack([-s, c], axis=-1)[..., None, :]
+            u = np.empty(th.shape + (2,))
+            u[..., 0], u[..., 1] = c, s
+            tang = np.empty(th.shape + (1, 2))
+            np.negative(s, out=tang[..., 0, 0])
+            tang[..., 0, 1] = c
+            return u, tang
         lon, lat = loc[..., 0], loc[..., 1]
         u = lonlat_to_unit(lon, lat)
         clo, slo, cla, sla = np.cos(lon), np.sin(lon), np.cos(lat), np.sin(lat)
@@ -213,9 +223,12 @@ class Model:
         The batch is processed in blocks of about :data:`BLOCK_TERMS` sensor-source
         terms so that the (block, K, N) intermediates stay in cache.
         """
-        x = self._as_params(scene_or_params)
+        return self._response_unchecked(self._as_params(scene_or_params))
+
+    def _response_unchecked(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`response` of a float array x (..., P) the caller has validated."""
         loc, inten = self._split(x)
-        batch, k, n = inten.shape[:-1], inten.shape[-1], self.n_sensors
+        batch, k, n = inten.shape[:-1], inten.shape[-1], self._n_sensors
         n_batch = math.prod(batch)
         if k == 0 or n_batch == 0:
             return np.zeros(batch + (n,))
@@ -232,19 +245,23 @@ class Model:
 
     def jacobian(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
         """d response / d params, shape (..., N, n_params)."""
-        x = self._as_params(scene_or_params)
+        jac_t = self._jacobian_t(self._as_params(scene_or_params))
+        return np.swapaxes(jac_t, -1, -2)
+
+    def _jacobian_t(self, x: np.ndarray) -> np.ndarray:
+        """Transposed Jacobian, C-contiguous (..., n_params, N), of a validated x."""
         loc, inten = self._split(x)
-        if self.kind == "position":
+        if self._kind == "position":
             blocks = self._jacobian_near(loc, inten)
         else:
             u, tang = self._directions(loc)
             c = u @ self._normals_t  # (..., K, N)
             g, dg = self.sensitivity.value(c), self.sensitivity.derivative(c)
             dc = tang @ self._normals_t  # (..., K, d, N)
-            d_loc = (inten[..., None] * dg)[..., None, :] * dc
-            blocks = np.concatenate([d_loc, g[..., None, :]], axis=-2)  # (..., K, d+1, N)
-        jac = np.moveaxis(blocks, -1, -3)  # (..., N, K, d+1)
-        return jac.reshape(jac.shape[:-2] + (-1,))
+            blocks = np.empty(c.shape[:-1] + (self._n_loc + 1, self._n_sensors))
+            np.multiply((inten[..., None] * dg)[..., None, :], dc, out=blocks[..., :-1, :])
+            blocks[..., -1, :] = g  # (..., K, d+1, N)
+        return blocks.reshape(x.shape + (self._n_sensors,))
 
     def _jacobian_near(self, loc: np.ndarray, inten: np.ndarray) -> np.ndarray:
         d = loc[..., :, None, :] - self.array.positions  # (..., K, N, 3)

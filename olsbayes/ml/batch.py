@@ -55,7 +55,7 @@ def project(model: Model, x: np.ndarray) -> np.ndarray:
 
 
 def _chi2(model: Model, x: np.ndarray, data: np.ndarray) -> np.ndarray:
-    r = data - model.response(x)
+    r = data - model._response_unchecked(x)
     return np.einsum("tn,tn->t", r, r)
 
 
@@ -68,15 +68,15 @@ def _lm_step(
     The response is read off the Jacobian (its intensity columns are the
     unit-intensity responses), so a step costs one Jacobian evaluation.  Fixed
     parameters (an intensity at its bound 0 with the gradient pointing outwards,
-    or ``frozen``) get a zero step.
+    or ``frozen``) get a zero step.  ``x`` (T, P) must be a validated float array.
     """
-    jac = model.jacobian(x)  # (T, N, P)
+    jt = model._jacobian_t(x)  # (T, P, N), C-contiguous
+    jac = np.swapaxes(jt, 1, 2)  # (T, N, P)
     d1 = model.n_loc + 1
-    jt = np.swapaxes(jac, 1, 2)  # (T, P, N)
     r = data - (jac[:, :, d1 - 1 :: d1] @ x[:, d1 - 1 :: d1, None])[..., 0]
     a = jt @ jac  # (T, P, P)
     g = (jt @ r[..., None])[..., 0]  # descent direction of chi2 / 2
-    p = x.shape[1]
+    t, p = x.shape
     fixed = np.zeros(x.shape, bool)
     fixed[:, d1 - 1 :: d1] = (x[:, d1 - 1 :: d1] <= 0.0) & (g[:, d1 - 1 :: d1] <= 0.0)
     if frozen is not None:
@@ -84,12 +84,12 @@ def _lm_step(
     diag = np.diagonal(a, axis1=1, axis2=2)
     floor = 1e-9 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
     a_d = a.copy()
-    idx = np.arange(p)
-    a_d[:, idx, idx] += lam[:, None] * np.maximum(diag, floor)
+    a_d_diag = a_d.reshape(t, p * p)[:, :: p + 1]  # writeable view of the diagonals
+    a_d_diag += lam[:, None] * np.maximum(diag, floor)
     if fixed.any():
         keep = ~fixed
         a_d *= keep[:, :, None] & keep[:, None, :]
-        a_d[:, idx, idx] += fixed
+        a_d_diag += fixed
         g = np.where(fixed, 0.0, g)
     step = np.linalg.solve(a_d, g[..., None])  # (T, P, 1)
     pred = (2.0 * g - (a @ step)[..., 0])[:, None, :] @ step  # step' (2 g - A step)
@@ -139,20 +139,22 @@ def refine_batch(
         act = np.flatnonzero(~done)
         if act.size == 0:
             break
-        xa, da = x[act], data[act]
-        fz = None if frozen is None else frozen[act]
-        x_new, chi2_old, pred = _lm_step(model, xa, da, lam[act], fz)
+        sel = slice(None) if act.size == t else act  # a view while no trial is done
+        xa, da, la = x[sel], data[sel], lam[sel]
+        fz = None if frozen is None else frozen[sel]
+        x_new, chi2_old, pred = _lm_step(model, xa, da, la, fz)
         chi2_new = _chi2(model, x_new, da)
-        nev[act] += 2  # one Jacobian (with the response) + one trial response
+        nev[sel] += 2  # one Jacobian (with the response) + one trial response
         tiny = ftol * chi2_old + 1e-30
         acc = chi2_new < chi2_old
         small = (acc & (chi2_old - chi2_new <= tiny)) | (pred <= tiny)
-        x[act] = np.where(acc[:, None], x_new, xa)
-        chi2[act] = np.where(acc, chi2_new, chi2_old)
-        lam[act] = np.where(acc, np.maximum(lam[act] / 5.0, 1e-12), lam[act] * 8.0)
-        stall = (lam[act] > _LAMBDA_MAX) & ~small
-        stalled[act] = stall
-        done[act] = small | stall
+        x[sel] = np.where(acc[:, None], x_new, xa)
+        chi2[sel] = np.where(acc, chi2_new, chi2_old)
+        la = np.where(acc, np.maximum(la / 5.0, 1e-12), la * 8.0)
+        lam[sel] = la
+        stall = (la > _LAMBDA_MAX) & ~small
+        stalled[sel] = stall
+        done[sel] = small | stall
     else:
         left = ~done
         chi2[left] = _chi2(model, x[left], data[left])
