@@ -44,9 +44,12 @@ def _z_floor(model: Model) -> float:
 
 def project(model: Model, x: np.ndarray) -> np.ndarray:
     """Map parameters onto the feasible set (intensity >= 0, |lat| <= pi/2, z > 0)."""
-    x = np.array(x, dtype=float)
+    return _project_inplace(model, np.array(x, dtype=float))
+
+
+def _project_inplace(model: Model, x: np.ndarray) -> np.ndarray:
     d1 = model.n_loc + 1
-    x[..., d1 - 1 :: d1] = np.maximum(x[..., d1 - 1 :: d1], 0.0)
+    np.maximum(x[..., d1 - 1 :: d1], 0.0, out=x[..., d1 - 1 :: d1])
     if model.kind == "lonlat":
         x[..., 1::d1] = np.clip(x[..., 1::d1], -np.pi / 2, np.pi / 2)
     elif model.kind == "position":
@@ -77,23 +80,23 @@ def _lm_step(
     a = jt @ jac  # (T, P, P)
     g = (jt @ r[..., None])[..., 0]  # descent direction of chi2 / 2
     t, p = x.shape
-    fixed = np.zeros(x.shape, bool)
-    fixed[:, d1 - 1 :: d1] = (x[:, d1 - 1 :: d1] <= 0.0) & (g[:, d1 - 1 :: d1] <= 0.0)
-    if frozen is not None:
-        fixed |= frozen
-    diag = np.diagonal(a, axis1=1, axis2=2)
+    at_bound = (x[:, d1 - 1 :: d1] <= 0.0) & (g[:, d1 - 1 :: d1] <= 0.0)
+    diag = a.reshape(t, p * p)[:, :: p + 1]
     floor = 1e-9 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
     a_d = a.copy()
     a_d_diag = a_d.reshape(t, p * p)[:, :: p + 1]  # writeable view of the diagonals
     a_d_diag += lam[:, None] * np.maximum(diag, floor)
-    if fixed.any():
+    if frozen is not None or at_bound.any():
+        fixed = np.zeros(x.shape, bool) if frozen is None else np.array(frozen, dtype=bool)
+        fixed[:, d1 - 1 :: d1] |= at_bound
         keep = ~fixed
         a_d *= keep[:, :, None] & keep[:, None, :]
         a_d_diag += fixed
         g = np.where(fixed, 0.0, g)
     step = np.linalg.solve(a_d, g[..., None])  # (T, P, 1)
     pred = (2.0 * g - (a @ step)[..., 0])[:, None, :] @ step  # step' (2 g - A step)
-    return project(model, x + step[..., 0]), np.einsum("tn,tn->t", r, r), pred[:, 0, 0]
+    x_new = _project_inplace(model, x + step[..., 0])
+    return x_new, np.einsum("tn,tn->t", r, r), pred[:, 0, 0]
 
 
 def refine_batch(
@@ -130,32 +133,38 @@ def refine_batch(
     """
     x = project(model, x0)
     t = x.shape[0]
-    lam = np.full(t, 1e-3)
     chi2 = np.zeros(t)
-    nev = np.zeros(t, dtype=np.int64)
+    nev = np.full(t, 2 * max_iter, dtype=np.int64)
     done = np.zeros(t, bool)
     stalled = np.zeros(t, bool)
-    for _ in range(max_iter):
-        act = np.flatnonzero(~done)
-        if act.size == 0:
+    # Working set of the active trials (rows ``rows`` of the outputs), compacted
+    # only when some trials finish: no gather/scatter in the other iterations.
+    rows = np.arange(t)
+    xa, da, la = x.copy(), data, np.full(t, 1e-3)
+    fz = frozen
+    for it in range(max_iter):
+        if rows.size == 0:
             break
-        sel = slice(None) if act.size == t else act  # a view while no trial is done
-        xa, da, la = x[sel], data[sel], lam[sel]
-        fz = None if frozen is None else frozen[sel]
         x_new, chi2_old, pred = _lm_step(model, xa, da, la, fz)
         chi2_new = _chi2(model, x_new, da)
-        nev[sel] += 2  # one Jacobian (with the response) + one trial response
         tiny = ftol * chi2_old + 1e-30
         acc = chi2_new < chi2_old
         small = (acc & (chi2_old - chi2_new <= tiny)) | (pred <= tiny)
-        x[sel] = np.where(acc[:, None], x_new, xa)
-        chi2[sel] = np.where(acc, chi2_new, chi2_old)
+        xa = np.where(acc[:, None], x_new, xa)
         la = np.where(acc, np.maximum(la / 5.0, 1e-12), la * 8.0)
-        lam[sel] = la
         stall = (la > _LAMBDA_MAX) & ~small
-        stalled[sel] = stall
-        done[sel] = small | stall
-    else:
-        left = ~done
-        chi2[left] = _chi2(model, x[left], data[left])
+        fin = small | stall
+        if fin.any():
+            out = rows[fin]
+            x[out] = xa[fin]
+            chi2[out] = np.where(acc, chi2_new, chi2_old)[fin]
+            nev[out] = 2 * (it + 1)  # one Jacobian (with the response) + one trial response
+            done[out] = True
+            stalled[out] = stall[fin]
+            keep = ~fin
+            rows, xa, da, la = rows[keep], xa[keep], da[keep], la[keep]
+            fz = None if fz is None else fz[keep]
+    if rows.size:  # hit max_iter
+        x[rows] = xa
+        chi2[rows] = _chi2(model, xa, da)
     return LMOutcome(x=x, chi2=chi2, converged=done, n_evaluations=nev, stalled=stalled)
