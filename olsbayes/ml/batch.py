@@ -24,6 +24,12 @@ __all__ = ["LMOutcome", "project", "refine_batch"]
 #: minimum to working precision (e.g. sitting on the kink of the clipped cosine).
 _LAMBDA_MAX = 1e14
 
+#: Jacobian entries (trials x P x N) per block of an LM iteration on a large
+#: batch (see :func:`_propose`): ~1 MiB, so the intermediates stay in cache.
+#: Measured on a 30-ring, K = 2, 16000 candidates: 158 ms unblocked, 109-112 ms
+#: for blocks of 512-2048 trials.
+_BLOCK_TERMS = 131072
+
 
 @dataclass(frozen=True)
 class LMOutcome:
@@ -99,6 +105,26 @@ def _lm_step(
     return x_new, np.einsum("tn,tn->t", r, r), pred[:, 0, 0]
 
 
+def _propose(
+    model: Model, x: np.ndarray, data: np.ndarray, lam: np.ndarray, frozen: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_lm_step` and the chi^2 of its proposal, in blocks of trials.
+
+    Every operation is row-wise, so blocking changes no number; it keeps the
+    (rows, P, N) intermediates of a large batch in cache (:data:`_BLOCK_TERMS`).
+    """
+    t, rows = x.shape[0], max(64, _BLOCK_TERMS // max(x.shape[1] * data.shape[1], 1))
+    if t <= rows:
+        x_new, chi2_old, pred = _lm_step(model, x, data, lam, frozen)
+        return x_new, chi2_old, pred, _chi2(model, x_new, data)
+    parts = [
+        _propose(model, x[i : i + rows], data[i : i + rows], lam[i : i + rows],
+                 None if frozen is None else frozen[i : i + rows])
+        for i in range(0, t, rows)
+    ]
+    return tuple(np.concatenate(z) for z in zip(*parts))  # type: ignore[return-value]
+
+
 def refine_batch(
     model: Model,
     data: np.ndarray,
@@ -145,8 +171,7 @@ def refine_batch(
     for it in range(max_iter):
         if rows.size == 0:
             break
-        x_new, chi2_old, pred = _lm_step(model, xa, da, la, fz)
-        chi2_new = _chi2(model, x_new, da)
+        x_new, chi2_old, pred, chi2_new = _propose(model, xa, da, la, fz)
         tiny = ftol * chi2_old + 1e-30
         acc = chi2_new < chi2_old
         small = (acc & (chi2_old - chi2_new <= tiny)) | (pred <= tiny)
