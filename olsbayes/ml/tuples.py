@@ -24,7 +24,7 @@ __all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "tuple_search", "Tupl
 
 #: Default cap on the number of K-tuples enumerated per data vector.
 TUPLE_BUDGET = 5_000
-_BLOCK = 65_536  # elements of each (t, C) work array per block: stays in cache
+_BLOCK = 32_768  # elements of each (t, C) work array per block: the ~2K + 3 arrays stay in cache
 
 
 def coarse_size(m: int, n: int, k: int, budget: int = TUPLE_BUDGET) -> int:
@@ -67,6 +67,8 @@ class TuplePlan:
     atoms: np.ndarray  # (Mc, N)
     combos: np.ndarray  # (C, K) tuples of coarse indices with a regular Gram matrix
     gram_inv: np.ndarray  # (C, K, K)
+    columns: np.ndarray  # (K, C) combos.T, C-contiguous (gathers read it row by row)
+    inv_rows: np.ndarray  # (K, K, C) gram_inv moved to contiguous (i, j) rows
 
 
 def _plan(g: np.ndarray, subset: np.ndarray, k: int) -> TuplePlan:
@@ -76,7 +78,9 @@ def _plan(g: np.ndarray, subset: np.ndarray, k: int) -> TuplePlan:
     a = gram[combos[:, :, None], combos[:, None, :]]  # (C, K, K)
     w = np.linalg.eigvalsh(a)
     ok = w[:, 0] > 1e-10 * w[:, -1]
-    return TuplePlan(subset, gc, combos[ok], np.linalg.inv(a[ok]))
+    combos, inv = combos[ok], np.linalg.inv(a[ok])
+    return TuplePlan(subset, gc, combos, inv, np.ascontiguousarray(combos.T),
+                     np.ascontiguousarray(np.moveaxis(inv, 0, -1)))
 
 
 _CACHE: OrderedDict = OrderedDict()
@@ -120,22 +124,29 @@ def tuple_search(plan: TuplePlan, data: np.ndarray) -> np.ndarray:
         Fine-grid indices of the tuple with the largest drop in residual sum of
         squares among tuples whose least-squares intensities are all >= 0.
     """
-    combos, a_inv = plan.combos, plan.gram_inv
-    k = combos.shape[1]
+    combos, a_inv = plan.columns, plan.inv_rows
+    k, n_c = combos.shape
     corr = data @ plan.atoms.T  # (T, Mc)
-    step = max(1, _BLOCK // max(combos.shape[0], 1))
+    step = max(1, _BLOCK // max(n_c, 1))
     best = np.empty(data.shape[0], dtype=np.int64)
+    rows = min(step, data.shape[0])
+    coef, tmp = np.empty((rows, n_c)), np.empty((rows, n_c))
+    score, feasible = np.empty((rows, n_c)), np.empty((rows, n_c), bool)
     for start in range(0, data.shape[0], step):
         c = corr[start : start + step]
-        b = [c[:, combos[:, j]] for j in range(k)]  # K arrays (t, C)
-        score = np.zeros_like(b[0])
-        feasible = np.ones(b[0].shape, bool)
+        m = c.shape[0]
+        cf, tp, sc, fe = coef[:m], tmp[:m], score[:m], feasible[:m]
+        b = [np.take(c, combos[j], axis=1) for j in range(k)]  # K arrays (t, C)
         for i in range(k):  # coef_i = sum_j A^-1_ij b_j, elementwise over (t, C)
-            coef = a_inv[:, i, 0] * b[0]
+            np.multiply(a_inv[i, 0], b[0], out=cf)
             for j in range(1, k):
-                coef += a_inv[:, i, j] * b[j]
-            feasible &= coef >= 0
-            score += b[i] * coef
-        score[~feasible] = -np.inf
-        best[start : start + step] = np.argmax(score, axis=1)
-    return plan.subset[combos[best]]
+                cf += np.multiply(a_inv[i, j], b[j], out=tp)
+            if i == 0:
+                np.greater_equal(cf, 0, out=fe)
+                np.multiply(b[i], cf, out=sc)
+            else:
+                fe &= cf >= 0
+                sc += np.multiply(b[i], cf, out=tp)
+        sc[~fe] = -np.inf
+        best[start : start + step] = np.argmax(sc, axis=1)
+    return plan.subset[plan.combos[best]]
