@@ -57,50 +57,67 @@ def _basis(g: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return q
 
 
-def _pursuit(g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int) -> np.ndarray:
-    """Orthogonal matching pursuit: K atoms chosen one at a time, shape (T, K)."""
+def _pursuit(
+    g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Orthogonal matching pursuit: K atoms chosen one at a time, shape (T, K).
+
+    Also returns the scores (T, M) of the last choice (given the first K - 1 atoms).
+    """
     idx = np.zeros((s.shape[0], 0), dtype=np.int64)
     for _ in range(k):
         sc = _scores(g, gnorm2, s, _basis(g, idx))
         idx = np.column_stack([idx, np.argmax(sc, axis=1)])
-    return idx
+    return idx, sc
 
 
 def _alternate(
     g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, idx: np.ndarray, max_sweeps: int
-) -> np.ndarray:
-    """Alternating projection from ``idx`` (T, K): re-choose each atom given the rest."""
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Alternating projection from ``idx`` (T, K): re-choose each atom given the rest.
+
+    Returns the atoms and, when the last sweep changed nothing, that sweep's
+    conditional scores of each source given the others (K arrays (T, M)), else None.
+    """
     idx = idx.copy()
     t, k = idx.shape
     rows = np.arange(t)
     for _ in range(max_sweeps if k > 1 else 0):
         changed = np.zeros(t, bool)
+        scores = []
         for j in range(k):
             others = np.delete(idx, j, axis=1)
             sc = _scores(g, gnorm2, s, _basis(g, others))
+            scores.append(sc)
             best = np.argmax(sc, axis=1)
             better = sc[rows, best] > sc[rows, idx[:, j]] * (1 + 1e-12)
             changed |= better
             idx[:, j] = np.where(better, best, idx[:, j])
         if not changed.any():
-            break
-    return idx
+            return idx, scores
+    return idx, None
 
 
 def _alternatives(
-    g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, idx: np.ndarray, n_alt: int
+    g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, idx: np.ndarray, n_alt: int,
+    scores: list[np.ndarray] | None = None,
 ) -> list[np.ndarray]:
     """Runner-up positions of each source given the others, ``K * n_alt`` sets (T, K).
 
     For source j the conditional scores are scanned for the next-best atoms
     outside the neighbourhood (normalised-atom correlation > ``_NEIGHBOUR``) of
     atoms already taken -- distinct basins of a weak source, which the
-    conditional optimum on the grid may miss after refinement.
+    conditional optimum on the grid may miss after refinement.  ``scores``: the
+    conditional scores of each source given the others at ``idx``, if known
+    (they are overwritten).
     """
     unit = g / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None]
     out = []
     for j in range(idx.shape[1]):
-        sc = _scores(g, gnorm2, s, _basis(g, np.delete(idx, j, axis=1)))
+        if scores is None:
+            sc = _scores(g, gnorm2, s, _basis(g, np.delete(idx, j, axis=1)))
+        else:
+            sc = scores[j]
         taken = idx[:, j]
         for _ in range(n_alt):
             sc[unit[taken] @ unit.T > _NEIGHBOUR] = -np.inf
@@ -118,8 +135,11 @@ def _search_chunk(
 ) -> np.ndarray:
     """Candidate K-atom sets (T, C, K): pursuit + alternating projection, runner-up
     positions of each source, and the best tuple of each coarse subset."""
-    base = _alternate(g, gnorm2, s, _pursuit(g, gnorm2, s, k), max_sweeps)
-    cands = [base] + _alternatives(g, gnorm2, s, base, n_alt)
+    first, last = _pursuit(g, gnorm2, s, k)
+    base, scores = _alternate(g, gnorm2, s, first, max_sweeps)
+    if k == 1:  # no sweeps; the scores of the single source given no others
+        scores = [last]
+    cands = [base] + _alternatives(g, gnorm2, s, base, n_alt, scores)
     for plan in plans:
         cands.append(tuple_search(plan, s))
     return np.stack(cands, axis=1)

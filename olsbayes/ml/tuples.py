@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
 from math import comb
@@ -85,6 +86,20 @@ def _plan(g: np.ndarray, subset: np.ndarray, k: int) -> TuplePlan:
 
 _CACHE: OrderedDict = OrderedDict()
 _CACHE_SIZE = 16
+_DIGESTS: dict = {}  # id -> (weakref, digest) of read-only atom arrays
+
+
+def _digest(g: np.ndarray) -> str:
+    """SHA-1 of the atoms; memoised for read-only arrays (the cached atoms of a model)."""
+    hit = _DIGESTS.get(id(g))
+    if hit is not None and hit[0]() is g and not g.flags.writeable:
+        return hit[1]
+    digest = hashlib.sha1(np.ascontiguousarray(g).view(np.uint8)).hexdigest()
+    if not g.flags.writeable:
+        if len(_DIGESTS) >= _CACHE_SIZE:
+            _DIGESTS.clear()
+        _DIGESTS[id(g)] = (weakref.ref(g), digest)
+    return digest
 
 
 def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET) -> list:
@@ -92,13 +107,12 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET) 
 
     The plans depend only on the atoms, K, ``n_sets`` and ``budget``, so repeated
     single fits with one model reuse them (an LRU cache of 16 entries keyed by a
-    hash of the atoms).
+    hash of the atoms, computed once per read-only atom array).
     """
     size = coarse_size(g.shape[0], g.shape[1], k, budget)
     if size == 0 or n_sets == 0:
         return []
-    key = (hashlib.sha1(np.ascontiguousarray(g).view(np.uint8)).hexdigest(), g.shape,
-           k, n_sets, size)
+    key = (_digest(g), g.shape, k, n_sets, size)
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
