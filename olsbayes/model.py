@@ -162,13 +162,10 @@ class Model:
     def _directions(self, loc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Unit vectors (..., K, D) and tangents d u / d loc (..., K, d, D)."""
         if self._kind == "angle":
-            th = loc[..., 0]
-            c, s = np.cos(th), np.sin(th)
-            u = np.empty(th.shape + (2,))
-            u[..., 0], u[..., 1] = c, s
-            tang = np.empty(th.shape + (1, 2))
-            np.negative(s, out=tang[..., 0, 0])
-            tang[..., 0, 1] = c
+            u = self._units(loc)
+            tang = np.empty(u.shape[:-1] + (1, 2))
+            np.negative(u[..., 1], out=tang[..., 0, 0])
+            tang[..., 0, 1] = u[..., 0]
             return u, tang
         lon, lat = loc[..., 0], loc[..., 1]
         u = lonlat_to_unit(lon, lat)
