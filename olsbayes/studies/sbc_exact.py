@@ -97,18 +97,25 @@ def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float,
     n, h = len(cells), 2 * np.pi / ngrid
     theta = -np.pi + h * (cells + gen.uniform(-0.5, 0.5, cells.shape))  # (n, k)
     g = _unit_responses(model, theta.ravel()).reshape(n, k, -1).swapaxes(1, 2)  # (n, N, k)
-    cov = np.linalg.inv(np.einsum("nsi,nsj->nij", g, g)) * model.sigma**2
+    gram = np.einsum("nsi,nsj->nij", g, g)
+    sign, logdet = np.linalg.slogdet(gram)
+    # two directions equal to rounding (a null set): G^T G is singular, the draw is dropped
+    ok = (sign > 0) & (logdet > np.sum(np.log(np.diagonal(gram, axis1=1, axis2=2)), -1) - 25)
+    theta, g, gram, logdet = theta[ok], g[ok], gram[ok], logdet[ok]
+    cov = np.linalg.inv(gram) * model.sigma**2
     rhs = np.einsum("nsi,s->ni", g, data) / model.sigma**2
     i_hat = np.einsum("nij,nj->ni", cov, rhs)
     chi2_min = (data @ data / model.sigma**2 - np.einsum("ni,ni->n", i_hat, rhs))
-    inten = i_hat + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), gen.standard_normal((n, k)))
+    root = np.linalg.cholesky(0.5 * (cov + cov.swapaxes(1, 2)))
+    inten = i_hat + np.einsum("nij,nj->ni", root, gen.standard_normal(i_hat.shape))
     inside = np.all((inten >= 0) & (inten <= i_max), axis=-1)
-    logw = np.where(inside, -0.5 * chi2_min + 0.5 * np.log(np.linalg.det(cov)), -np.inf)
+    log_det_cov = k * np.log(model.sigma**2) - logdet
+    logw = np.where(inside, -0.5 * chi2_min + 0.5 * log_det_cov, -np.inf)
     if not np.any(np.isfinite(logw)):
         raise InputError("exact_ring_posterior: no draw inside the intensity prior; "
                          "increase per_cell or ngrid")
     w = np.exp(logw - np.max(logw))
-    x = np.stack([theta, inten], axis=-1).reshape(n, 2 * k)
+    x = np.stack([theta, inten], axis=-1).reshape(len(theta), 2 * k)
     return model.canonical(x), w / w.sum()
 
 
