@@ -8,6 +8,12 @@ slowest trial only in iterations, not in work.
 
 Bounds: intensities >= 0 (active set: an intensity at 0 whose gradient points
 outwards is frozen for that step), latitudes in [-pi/2, pi/2], plate z > 0.
+
+:func:`refine_batch` runs the same algorithm compiled, one trial at a time
+(:mod:`olsbayes.ml._kernel`), for the models the kernel covers (ring, sphere
+and plate with the clipped cosine or cos^p laws) -- for a few candidates of a
+small model numpy's per-call overhead dominates the lock-step version.  The
+numpy version :func:`refine_batch_numpy` is the reference and serves other laws.
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ import numpy as np
 
 from ..model import Model
 
-__all__ = ["LMOutcome", "project", "refine_batch"]
+__all__ = ["LMOutcome", "project", "refine_batch", "refine_batch_numpy"]
 
 #: Damping above which no descent step is representable: the point is a local
 #: minimum to working precision (e.g. sitting on the kink of the clipped cosine).
@@ -134,7 +140,31 @@ def refine_batch(
     ftol: float = 1e-10,
     frozen: np.ndarray | None = None,
 ) -> LMOutcome:
-    """Bounded Levenberg–Marquardt from ``x0`` for every trial at once.
+    """Bounded Levenberg–Marquardt from ``x0`` for every trial.
+
+    Compiled (:func:`olsbayes.ml._kernel.lm_batch`) when the kernel covers the
+    model, else :func:`refine_batch_numpy`; both run the same algorithm and
+    take and return the same (see :func:`refine_batch_numpy`).
+    """
+    from . import _kernel  # numba is imported on first use, not with the package
+
+    if not _kernel.supports(model):
+        return refine_batch_numpy(model, data, x0, max_iter=max_iter, ftol=ftol, frozen=frozen)
+    x, chi2, conv, nev, stalled = _kernel.lm_batch(
+        model, data, np.asarray(x0, dtype=float), max_iter, ftol, frozen, _z_floor(model))
+    return LMOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev, stalled=stalled)
+
+
+def refine_batch_numpy(
+    model: Model,
+    data: np.ndarray,
+    x0: np.ndarray,
+    *,
+    max_iter: int = 300,
+    ftol: float = 1e-10,
+    frozen: np.ndarray | None = None,
+) -> LMOutcome:
+    """Bounded Levenberg–Marquardt from ``x0`` for every trial at once (numpy).
 
     Parameters
     ----------

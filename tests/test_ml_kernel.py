@@ -1,0 +1,176 @@
+"""The compiled LM kernel (olsbayes.ml._kernel) against the numpy reference.
+
+Both run the same bounded Levenberg–Marquardt; they differ only in rounding
+(summation order, LU instead of LAPACK's solve).  Both stop when an accepted
+step lowers chi^2 by less than ftol * chi^2 (ftol = 1e-10), so two runs to the
+same minimum agree in chi^2 to ~ftol, and in each parameter to about
+sqrt(ftol * chi^2) / sigma ~ sqrt(ftol * N) CRLB standard deviations (~1e-4
+for N <= 120): the tolerances below are 10x those.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import olsbayes as ob
+from olsbayes.crlb import kink_sources
+from olsbayes.ml import _kernel
+from olsbayes.ml.batch import refine_batch, refine_batch_numpy
+from olsbayes.sensitivity import CustomSensitivity
+
+FTOL = 1e-10
+
+
+def _crlb_sd(model: ob.Model, truth: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.diag(np.linalg.pinv(model.fisher(truth))))
+
+
+def _compare(model, truth, data, x0, frozen=None, n_close=None):
+    """Kernel vs numpy from the same starts: same optimum, same flags."""
+    assert _kernel.supports(model)
+    a = refine_batch(model, data, x0, frozen=frozen)
+    b = refine_batch_numpy(model, data, x0, frozen=frozen)
+    assert a.converged.all() and b.converged.all()
+    rel = np.abs(a.chi2 - b.chi2) / b.chi2
+    sd = _crlb_sd(model, truth)
+    dx = np.abs(a.x - b.x) / sd
+    close = (rel <= 10 * FTOL) & np.all(dx <= 10 * np.sqrt(FTOL * model.n_sensors), axis=1)
+    # every trial, unless the caller allows a few rounding-driven branch changes
+    assert close.sum() >= (close.size if n_close is None else n_close), (rel.max(), dx.max())
+    # chi^2 reported is the chi^2 of the returned x
+    resid = data - model.response(a.x)
+    np.testing.assert_allclose(a.chi2, np.einsum("tn,tn->t", resid, resid), rtol=1e-12)
+    return a, b
+
+
+def _starts(model, truth, data_rng, n, scale):
+    rng = np.random.default_rng(data_rng)
+    return truth + scale * rng.standard_normal((n, truth.size))
+
+
+@pytest.mark.parametrize("law", ["cosine", ob.CosinePower(2.0), ob.CosinePower(2.5)])
+def test_ring_matches_numpy(law):
+    model = ob.Model(ob.Ring(30), 1e-2, law)
+    scene = ob.Scene(directions=[0.4, 2.5, -1.9], intensities=[1.0, 0.7, 0.5])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 1, size=40)
+    _compare(model, truth, data, _starts(model, truth, 2, 40, 0.03))
+
+
+def test_sphere_matches_numpy():
+    model = ob.Model(ob.Sphere.fibonacci(120), 1e-2)
+    scene = ob.Scene(directions=[[0.4, 0.2], [2.5, -0.5]], intensities=[1.0, 0.6])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 3, size=30)
+    _compare(model, truth, data, _starts(model, truth, 4, 30, 0.03))
+
+
+def test_plate_matches_numpy():
+    model = ob.Model(ob.Plate.grid(6, 6, pitch=1.0), 1e-3)
+    scene = ob.Scene(positions=[[2.0, 2.5, 3.0], [3.5, 1.0, 2.0]], intensities=[10.0, 6.0])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 5, size=30)
+    _compare(model, truth, data, _starts(model, truth, 6, 30, 0.05))
+
+
+def test_intensity_at_bound():
+    """A second source with true intensity 0: fits end with I = 0 exactly on both paths."""
+    model = ob.Model(ob.Ring(30), 1e-2)
+    scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.0])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 7, size=40)
+    x0 = _starts(model, truth, 8, 40, 0.02)
+    x0[:, 3] = 0.05
+    sd = _crlb_sd(model, model.pack(ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.5])))
+    a = refine_batch(model, data, x0)
+    b = refine_batch_numpy(model, data, x0)
+    at_bound = b.x[:, 3] == 0.0
+    assert at_bound.sum() >= 10  # the case is exercised
+    np.testing.assert_array_equal(a.x[:, 3] == 0.0, at_bound)
+    np.testing.assert_array_less(np.abs(a.chi2 - b.chi2) / b.chi2, 10 * FTOL)
+    ok = at_bound  # the angle of a zero-intensity source is unidentified: compare the rest
+    dx = np.abs(a.x[ok][:, :3] - b.x[ok][:, :3]) / sd[:3]
+    assert dx.max() <= 10 * np.sqrt(FTOL * model.n_sensors)
+
+
+def test_frozen_parameter():
+    model = ob.Model(ob.Ring(30), 1e-2)
+    scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 9, size=30)
+    x0 = _starts(model, truth, 10, 30, 0.02)
+    frozen = np.zeros(x0.shape, bool)
+    frozen[:, 2] = True  # second source's angle held at its start
+    a, _ = _compare(model, truth, data, x0, frozen=frozen)
+    np.testing.assert_array_equal(a.x[:, 2], x0[:, 2])
+
+
+def test_source_on_kink():
+    """A source 90 deg from a sub-sensor (the kink of the clipped cosine): starts on the
+    kink, free and (as the fast fit's kink polish does) with that angle frozen."""
+    ring = ob.Ring(30)
+    model = ob.Model(ring, 1e-2)
+    kink = ring.angles[3] + np.pi / 2
+    scene = ob.Scene(directions=[kink, 2.0], intensities=[1.0, 0.5])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 11, size=40)
+    x0 = _starts(model, truth, 12, 40, 0.02)
+    x0[:, 0] = kink
+    frozen = np.zeros(x0.shape, bool)
+    frozen[:, 0] = True
+    a, _ = _compare(model, truth, data, x0, frozen=frozen)
+    assert kink_sources(model, a.x, atol=1e-9)[:, 0].all()
+    _compare(model, truth, data, x0)
+
+
+def test_batch_equals_loop_exactly():
+    model = ob.Model(ob.Sphere.fibonacci(60), 1e-2)
+    scene = ob.Scene(directions=[[0.4, 0.2], [2.5, -0.5]], intensities=[1.0, 0.6])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 13, size=12)
+    x0 = _starts(model, truth, 14, 12, 0.05)
+    a = refine_batch(model, data, x0)
+    for i in range(12):
+        b = refine_batch(model, data[i : i + 1], x0[i : i + 1])
+        np.testing.assert_array_equal(a.x[i], b.x[0])
+        assert a.chi2[i] == b.chi2[0] and a.n_evaluations[i] == b.n_evaluations[0]
+
+
+def test_max_iter_and_counts_match_numpy():
+    model = ob.Model(ob.Ring(30), 1e-2)
+    scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
+    data = model.simulate(scene, 15, size=10)
+    x0 = _starts(model, model.pack(scene), 16, 10, 0.3)
+    a = refine_batch(model, data, x0, max_iter=2)
+    b = refine_batch_numpy(model, data, x0, max_iter=2)
+    assert not a.converged.any() and not b.converged.any()
+    np.testing.assert_array_equal(a.n_evaluations, b.n_evaluations)
+    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-9)
+
+
+def test_custom_law_takes_numpy_path():
+    law = CustomSensitivity(lambda c: np.maximum(c, 0.0) ** 3, lambda c: 3 * np.maximum(c, 0) ** 2)
+    model = ob.Model(ob.Ring(30), 1e-2, law)
+    assert not _kernel.supports(model)
+    scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
+    data = model.simulate(scene, 17, size=5)
+    x0 = _starts(model, model.pack(scene), 18, 5, 0.02)
+    a = refine_batch(model, data, x0)
+    b = refine_batch_numpy(model, data, x0)
+    np.testing.assert_array_equal(a.x, b.x)
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_fit_ml_same_optimum_as_numpy_path(k, monkeypatch):
+    """The whole fast fit (search, restarts, kink hops, polish) on either LM path."""
+    model = ob.Model(ob.Ring(30), 1e-2)
+    ang = 0.37 + 2 * np.pi * np.arange(k) / k + 0.13 * np.arange(k)
+    scene = ob.Scene(directions=ang, intensities=np.linspace(1.0, 0.6, k))
+    data = model.simulate(scene, 19, size=60)
+    a = ob.fit_ml(model, data, k)
+    monkeypatch.setattr(_kernel, "supports", lambda model: False)
+    b = ob.fit_ml(model, data, k)
+    # log L = -chi^2 / (2 sigma^2) + const, chi^2 ~ N sigma^2: 10 ftol relative in chi^2
+    np.testing.assert_allclose(a.log_likelihood, b.log_likelihood, rtol=0,
+                               atol=10 * FTOL * model.n_sensors)
