@@ -86,9 +86,28 @@ def _law(c, law, p):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _eval_ring_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
+    """:func:`_eval_far` for the planar ring and the clipped cosine (branch-free loops)."""
+    for k in range(x.size // 2):
+        u0, u1, inten = math.cos(x[2 * k]), math.sin(x[2 * k]), x[2 * k + 1]
+        row_g, row_a = jt[2 * k + 1], jt[2 * k]
+        for n in range(nrm.shape[0]):
+            c = u0 * nrm[n, 0] + u1 * nrm[n, 1]
+            row_g[n] = max(c, 0.0)
+        if want_jac:
+            for n in range(nrm.shape[0]):
+                c = u0 * nrm[n, 0] + u1 * nrm[n, 1]
+                dc = -u1 * nrm[n, 0] + u0 * nrm[n, 1]
+                row_a[n] = inten * dc if c > 0.0 else 0.0
+
+
+@numba.njit(cache=True)
 def _eval_far(kind, law, p, nrm, x, jt, want_jac):  # pragma: no cover - compiled
     """Rows of jt (P, N): g(c) per source, and with want_jac the location rows."""
     d1 = 2 if kind == 0 else 3
+    if kind == 0 and law == _LAW_COSINE:
+        _eval_ring_cosine(nrm, x, jt, want_jac)
+        return
     for k in range(x.size // d1):
         b = k * d1
         inten = x[b + d1 - 1]
@@ -168,9 +187,13 @@ def _project(kind, zfl, x):  # pragma: no cover - compiled
             x[b + 2] = zfl
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath={"reassoc"})
 def _normal_eq(jt, r, a, g):  # pragma: no cover - compiled
-    """a = jt jt^T (P, P) and g = jt r (P,)."""
+    """a = jt jt^T (P, P) and g = jt r (P,).
+
+    The sums over sensors may be reassociated (SIMD partial sums): a rounding-level
+    difference only, like any BLAS; deterministic for a given machine.
+    """
     m, n = jt.shape
     for i in range(m):
         acc = 0.0
