@@ -22,7 +22,7 @@ import numpy as np
 
 from .tuples import TUPLE_BUDGET, TuplePlan, tuple_plans, tuple_search
 
-__all__ = ["grid_search"]
+__all__ = ["grid_search", "grid_search_numpy"]
 
 _CHUNK = 512
 #: Normalised-atom correlation above which two atoms count as one basin.
@@ -159,11 +159,46 @@ def _intensities(
     return np.maximum(coef, 0.0), rss
 
 
+def _frozen_view(a: np.ndarray, dtype: type = float) -> np.ndarray:
+    """A C-contiguous read-only view (one array type, so one compiled signature)."""
+    v = np.ascontiguousarray(a, dtype=dtype).view()
+    v.flags.writeable = False
+    return v
+
+
 def grid_search(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
     budget: int = TUPLE_BUDGET, n_alt: int = 2,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Candidate K-atom explanations of every data vector.
+    """Candidate K-atom explanations of every data vector (compiled, one trial at a time).
+
+    Same stages, scores and tie-breaking as :func:`grid_search_numpy` (see there for
+    the parameters and returns), run by :mod:`olsbayes.ml._search_kernel`; the
+    scores differ from the numpy ones by rounding only.
+    """
+    from . import _search_kernel as sk  # numba is imported on first use
+
+    gnorm2 = np.einsum("mn,mn->m", g, g)
+    unit = g / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None]
+    plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
+    t, first = data.shape[0], 1 + k * n_alt
+    idx = np.empty((t, first + len(plans), k), dtype=np.int64)
+    gv, s = _frozen_view(g), _frozen_view(data)
+    sk.search_trials(gv, _frozen_view(gnorm2), _frozen_view(unit), s, k, max_sweeps, n_alt, idx)
+    for j, plan in enumerate(plans):
+        sk.tuple_trials(_frozen_view(plan.atoms), _frozen_view(plan.subset, np.int64),
+                        _frozen_view(plan.columns, np.int64), _frozen_view(plan.inv_rows), s,
+                        idx, first + j)
+    inten, rss = np.empty(idx.shape), np.empty(idx.shape[:2])
+    sk.intensities_trials(gv, s, idx, inten, rss)
+    return idx, inten, rss
+
+
+def grid_search_numpy(
+    g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
+    budget: int = TUPLE_BUDGET, n_alt: int = 2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate K-atom explanations of every data vector (numpy reference).
 
     Parameters
     ----------
