@@ -220,3 +220,26 @@ def test_compiled_search_batch_equals_loop():
         one = grid_search(g, data[i : i + 1], 3)
         for a, b in zip(full, one):
             np.testing.assert_array_equal(a[i], b[0])
+
+
+@pytest.mark.parametrize("geometry", ["ring", "sphere", "plate"])
+def test_chi2_fisher_matches_model(geometry):
+    """The compiled chi^2 and Fisher matrix (used for MLResult) == Model's, to rounding."""
+    if geometry == "ring":
+        model = ob.Model(ob.Ring(30), 1e-2, ob.CosinePower(1.5))
+        scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
+    elif geometry == "sphere":
+        model = ob.Model(ob.Sphere.fibonacci(60), 1e-2)
+        scene = ob.Scene(directions=[[0.4, 0.2], [2.5, -0.5]], intensities=[1.0, 0.6])
+    else:
+        model = ob.Model(ob.Plate.grid(5, 5, pitch=1.0), 1e-3)
+        scene = ob.Scene(positions=[[2.0, 2.5, 3.0]], intensities=[10.0])
+    truth = model.pack(scene)
+    data = model.simulate(scene, 23, size=6)
+    x = _starts(model, truth, 24, 6, 0.01)
+    chi2, fisher = _kernel.chi2_fisher(model, x, data)
+    ll = model.log_likelihood(x, data)
+    const = -model.n_sensors * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
+    np.testing.assert_allclose(-0.5 * chi2 / model.sigma**2 + const, ll, rtol=1e-12)
+    ref = model.fisher(x)
+    np.testing.assert_allclose(fisher, ref, rtol=0, atol=1e-12 * np.abs(ref).max())

@@ -30,7 +30,7 @@ import numpy as np
 from ..model import Model
 from ..sensitivity import Cosine, CosinePower
 
-__all__ = ["KINDS", "law_code", "lm_batch", "supports"]
+__all__ = ["KINDS", "chi2_fisher", "law_code", "lm_batch", "supports"]
 
 #: Source kinds covered, in the order of their integer codes.
 KINDS = ("angle", "lonlat", "position")
@@ -331,18 +331,47 @@ def lm_batch(
     iteration, as the numpy path counts) and stalled (T,).  Arguments are
     coerced to one set of array types so that a single compiled signature serves.
     """
-    code, p = law_code(model)
-    kind = KINDS.index(model.kind)
+    kind, code, p, nrm, pos = _arrays(model)
     t = x0.shape[0]
     x = np.array(x0, dtype=np.float64, order="C")  # always a fresh writeable copy
     s = np.require(data, np.float64, ["C", "W"])
     fz = (np.zeros(x.shape, np.bool_) if frozen is None
           else np.require(frozen, np.bool_, ["C", "W"]))
-    nrm = np.require(model.array.normals, np.float64, ["C", "W"])
-    pos = model.array.positions
-    pos = np.zeros((1, 3)) if pos is None else np.require(pos, np.float64, ["C", "W"])
     chi2, n_iter = np.empty(t), np.empty(t, np.int64)
     conv, stalled = np.empty(t, np.bool_), np.empty(t, np.bool_)
     _lm_all(kind, code, p, nrm, pos, float(z_floor), s, x, fz, int(max_iter), float(ftol),
             chi2, n_iter, conv, stalled)
     return x, chi2, conv, 2 * n_iter, stalled
+
+
+@numba.njit(cache=True)
+def _stats_all(kind, law, p, nrm, pos, x, data, chi2, fisher):  # pragma: no cover
+    """chi^2 of every row of x (T, P) against data (T, N) and J^T J (T, P, P)."""
+    t, np_ = x.shape
+    jt, r, g = np.empty((np_, data.shape[1])), np.empty(data.shape[1]), np.empty(np_)
+    for i in range(t):
+        chi2[i] = _residual(kind, law, p, nrm, pos, x[i], data[i], jt, r, True)
+        _normal_eq(jt, r, fisher[i], g)
+
+
+def _arrays(model: Model) -> tuple[int, int, float, np.ndarray, np.ndarray]:
+    code, p = law_code(model)
+    nrm = np.require(model.array.normals, np.float64, ["C", "W"])
+    pos = model.array.positions
+    pos = np.zeros((1, 3)) if pos is None else np.require(pos, np.float64, ["C", "W"])
+    return KINDS.index(model.kind), code, p, nrm, pos
+
+
+def chi2_fisher(model: Model, x: np.ndarray, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of squared residuals (T,) and Fisher information J^T J / sigma^2 (T, P, P).
+
+    For a supported model, x (T, P) and data (T, N); the compiled counterpart of
+    ``model.log_likelihood`` and ``model.fisher`` (rounding-level differences).
+    """
+    kind, code, p, nrm, pos = _arrays(model)
+    xx = np.require(x, np.float64, ["C", "W"])
+    s = np.require(data, np.float64, ["C", "W"])
+    chi2, fisher = np.empty(xx.shape[0]), np.empty((xx.shape[0],) + (xx.shape[1],) * 2)
+    _stats_all(kind, code, p, nrm, pos, xx, s, chi2, fisher)
+    fisher /= model.sigma**2
+    return chi2, fisher

@@ -12,7 +12,7 @@ from ..errors import ConvergenceWarning, InputError
 from ..model import Model
 from .batch import LMOutcome
 from .fast import fit_fast
-from .grid import check_grid, default_grid
+from .grid import cached_default_grid, check_grid
 from .multistart import fit_multistart
 from .result import MLResult
 
@@ -42,14 +42,15 @@ def _check(model: object, data: object, n_sources: object, method: object) -> tu
     return arr, k
 
 
-def _covariances(model: Model, x: np.ndarray) -> np.ndarray:
+def _covariances(model: Model, x: np.ndarray, fisher: np.ndarray | None = None) -> np.ndarray:
     """Inverse Fisher matrices (T, P, P) at the estimates x (T, P), batched.
 
     Same rule as :func:`olsbayes.crlb.bound_covariance`, vectorised over trials:
     pseudo-inverse over the eigenvalues above ``SINGULAR_RTOL`` times the largest,
     rows/columns of parameters with a component in the null space set to inf.
+    ``fisher``: the Fisher matrices at x if already known.
     """
-    w, v = np.linalg.eigh(model.fisher(x))  # (T, P), (T, P, P)
+    w, v = np.linalg.eigh(model.fisher(x) if fisher is None else fisher)  # (T, P), (T, P, P)
     top = np.maximum(w[:, -1:], np.finfo(float).tiny)
     null = w <= SINGULAR_RTOL * top
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
@@ -123,8 +124,9 @@ def fit_ml(
         grid or option values.
     """
     arr, k = _check(model, data, n_sources, method)
-    gen = as_rng(rng)
-    g = default_grid(model) if grid is None else check_grid(model, grid)
+    # the fast method ignores rng: validate one given, but draw no OS entropy for None
+    gen = as_rng(rng) if method == "multistart" or rng is not None else None
+    g = cached_default_grid(model) if grid is None else check_grid(model, grid)
     batch = arr.ndim == 2
     s = arr if batch else arr[None, :]
     if method == "fast":
@@ -144,9 +146,17 @@ def fit_ml(
 def _result(
     model: Model, s: np.ndarray, k: int, method: str, out: LMOutcome, batch: bool, warn: bool
 ) -> MLResult:
+    from . import _kernel  # numba is imported on first use, not with the package
+
     x = model.canonical(out.x)
-    ll = model.log_likelihood(x, s)
-    cov = _covariances(model, x)
+    if _kernel.supports(model):  # compiled: chi^2 and Fisher in one pass
+        chi2, fisher = _kernel.chi2_fisher(model, x, s)
+        n = model.n_sensors
+        ll = -0.5 * chi2 / model.sigma**2 - n * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
+        cov = _covariances(model, x, fisher)
+    else:
+        ll = model.log_likelihood(x, s)
+        cov = _covariances(model, x)
     if warn and not np.all(out.converged):
         bad = int(np.sum(~out.converged))
         warnings.warn(

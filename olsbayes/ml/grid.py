@@ -17,7 +17,7 @@ from ..errors import InputError
 from ..geometry import lonlat_to_unit, wrap_angle
 from ..model import Model
 
-__all__ = ["default_grid", "atoms", "grid_step"]
+__all__ = ["default_grid", "cached_default_grid", "atoms", "grid_step"]
 
 
 def _ring_grid(model: Model, density: float) -> np.ndarray:
@@ -66,6 +66,19 @@ def default_grid(model: Model, density: float | None = None) -> np.ndarray:
     if model.kind == "lonlat":
         return _sphere_grid(model, density)
     return _plate_grid(model, density)
+
+
+_GRIDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def cached_default_grid(model: Model) -> np.ndarray:
+    """:func:`default_grid` of a model at the default density, cached per model (read-only)."""
+    g = _GRIDS.get(model)
+    if g is None:
+        g = default_grid(model)
+        g.flags.writeable = False
+        _GRIDS[model] = g
+    return g
 
 
 def check_grid(model: Model, grid: object) -> np.ndarray:
