@@ -20,6 +20,7 @@ from .gaussian import gaussian_posterior
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import gibbs_intensities
 from .truncated import sample_truncated_gaussian
+from .window import window_moves
 
 __all__ = ["image", "PRIORS", "SAMPLERS"]
 
@@ -55,6 +56,7 @@ def image(
     n_burn: int = 100,
     sampler: str = "gibbs",
     neighbours: int = 4,
+    window: int = 15,
     prior_mean: float | None = None,
     prior_sd: float | None = None,
     null_warn: float = 0.1,
@@ -108,6 +110,12 @@ def image(
     neighbours : int
         Gibbs also trades intensity between each source and its ``neighbours``
         nearest sources (exact moves along ``e_k - e_l``); 0 disables.
+    window : int
+        Box priors with Gibbs: each sweep also makes exact moves along the slow
+        eigen-directions of ``A_B^T A_B`` for every window ``B`` of a source
+        and its ``window`` nearest sources -- local patterns the array barely
+        sees (:mod:`olsbayes.imaging.window`); 0 disables.  Not used by the
+        sparse prior (its point mass at 0 is moved by the pair moves).
     prior_mean, prior_sd : float, optional
         Gaussian prior (default i_max / 2 and i_max / 2).
     null_warn : float
@@ -148,6 +156,7 @@ def image(
     n_chains = integer("n_chains", n_chains, low=1)
     n_burn = integer("n_burn", n_burn, low=0)
     neighbours = integer("neighbours", neighbours, low=0)
+    window = integer("window", window, low=0)
     gen = as_rng(rng)
     a = design_matrix(model, loc)
     design = analyse_design(a, loc, model.sigma, i_max)
@@ -178,8 +187,12 @@ def image(
         spike = prior == "sparse"
         if spike:  # dim sources of the jittered mode start in the spike
             x0 = np.where(x0 < 0.1 * i_max, 0.0, x0)
+        moves = None
+        if window and not spike and k > 1:
+            moves = window_moves(a, neighbour_groups(model, loc, window), model.sigma)
         run = gibbs_intensities(a, y, model.sigma, hi, x0, n_samples, gen, n_burn=n_burn,
-                                spike=spike, pairs=neighbour_pairs(model, loc, neighbours))
+                                spike=spike, pairs=neighbour_pairs(model, loc, neighbours),
+                                windows=moves)
         draws, acc, used = run.samples, 1.0, "gibbs"
     elif sampler == "eigen":
         run = eigen_gibbs(a.T @ a / model.sigma**2, a.T @ y / model.sigma**2, np.zeros(k),

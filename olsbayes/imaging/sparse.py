@@ -23,7 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import expit, log_ndtr
 
+from ..errors import InputError
 from .truncated import truncnorm_1d
+from .window import WindowMoves, window_sweep
 
 __all__ = ["GibbsSamples", "gibbs_intensities", "log_ndtr_diff"]
 
@@ -105,6 +107,7 @@ def gibbs_intensities(
     w_prior: tuple[float, float] = (1.0, 1.0),
     thin: int = 1,
     pairs: np.ndarray | None = None,
+    windows: WindowMoves | None = None,
 ) -> GibbsSamples:
     """Run the single-site Gibbs sampler (random scan order per sweep).
 
@@ -129,7 +132,13 @@ def gibbs_intensities(
         Source pairs (k, l) that also get an exact move along ``e_k - e_l`` each
         sweep -- neighbours whose difference the array barely sees, the slow
         directions of single-site Gibbs.  Only pairs with distinct columns.
+    windows : WindowMoves, optional
+        Exact moves along the slow eigen-directions of local windows of pixels
+        (:mod:`olsbayes.imaging.window`), once each per sweep; box priors only
+        (``spike`` False).
     """
+    if spike and windows is not None and windows.n_moves:
+        raise InputError("windows: window moves need the box prior (spike=False); got spike=True")
     x = np.array(x0, dtype=float)
     c, k = x.shape
     r = y - x @ a.T
@@ -150,6 +159,8 @@ def gibbs_intensities(
             if n_pairs[p] > 0:
                 _pair(x, r, pairs[p, 0], pairs[p, 1], d_pairs[p], n_pairs[p], sigma, i_max,
                       spike, rng)
+        if windows is not None:
+            window_sweep(x, r, windows, sigma, i_max, rng)
         if spike:
             n_on = np.count_nonzero(x, axis=1)
             w = rng.beta(w_prior[0] + n_on, w_prior[1] + k - n_on)
