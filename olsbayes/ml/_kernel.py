@@ -23,6 +23,7 @@ of single calls bit for bit).  Compiled once per machine (``cache=True``).
 from __future__ import annotations
 
 import math
+import weakref
 
 import numba
 import numpy as np
@@ -275,23 +276,22 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
 def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w):  # pragma: no cover
     """Bounded LM of one trial from x (in place); returns (chi2, n_iter, converged, stalled).
 
-    w: workspace arrays (jt, r, a, ad, g, gm, step, x_new, fx).  The Jacobian
-    is kept across rejected steps (same x, same numbers as recomputing it).
+    w: workspace arrays (jt, r, jt2, r2, a, ad, g, gm, step, x_new, fx).  Proposals
+    are evaluated with their Jacobian, so an accepted step needs no re-evaluation
+    (the same numbers as evaluating again at the new point); after a rejected
+    step the normal equations at x are reused.
     """
-    jt, r, a, ad, g, gm, step, xn, fx = w
+    jt, r, jt2, r2, a, ad, g, gm, step, xn, fx = w
     d1 = kind + 2
-    lam, fresh, chi2_old = 1e-3, False, 0.0
+    lam = 1e-3
+    chi2_old = _residual(kind, law, p, nrm, pos, x, s, jt, r, True)
+    _normal_eq(jt, r, a, g)
     for it in range(max_iter):
-        if not fresh:
-            chi2_old = _residual(kind, law, p, nrm, pos, x, s, jt, r, True)
-            _normal_eq(jt, r, a, g)
-            fresh = True
         pred = _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step)
         for i in range(x.size):
             xn[i] = x[i] + step[i]
         _project(kind, zfl, xn)
-        chi2_new = _residual(kind, law, p, nrm, pos, xn, s, jt, r, False)
-        fresh = False  # jt's intensity rows now hold the proposal's
+        chi2_new = _residual(kind, law, p, nrm, pos, xn, s, jt2, r2, True)
         tiny = ftol * chi2_old + 1e-30
         acc = chi2_new < chi2_old
         small = (acc and chi2_old - chi2_new <= tiny) or pred <= tiny
@@ -303,6 +303,9 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w):  # prag
         stall = lam > LAMBDA_MAX and not small
         if small or stall:
             return (chi2_new if acc else chi2_old), it + 1, True, stall
+        if acc:
+            jt, jt2, r, r2, chi2_old = jt2, jt, r2, r, chi2_new
+            _normal_eq(jt, r, a, g)
     return _residual(kind, law, p, nrm, pos, x, s, jt, r, False), max_iter, False, False
 
 
@@ -312,8 +315,9 @@ def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol,
     """:func:`_lm_trial` for every row of x (T, P) in place, outputs per trial."""
     t, np_ = x.shape
     n = data.shape[1]
-    w = (np.empty((np_, n)), np.empty(n), np.empty((np_, np_)), np.empty((np_, np_)),
-         np.empty(np_), np.empty(np_), np.empty(np_), np.empty(np_), np.empty(np_, np.bool_))
+    w = (np.empty((np_, n)), np.empty(n), np.empty((np_, n)), np.empty(n),
+         np.empty((np_, np_)), np.empty((np_, np_)), np.empty(np_), np.empty(np_),
+         np.empty(np_), np.empty(np_), np.empty(np_, np.bool_))
     for i in range(t):
         _project(kind, zfl, x[i])
         c, m, ok, st = _lm_trial(kind, law, p, nrm, pos, zfl, data[i], x[i], frozen[i],
@@ -354,12 +358,23 @@ def _stats_all(kind, law, p, nrm, pos, x, data, chi2, fisher):  # pragma: no cov
         _normal_eq(jt, r, fisher[i], g)
 
 
+_ARRAYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def _arrays(model: Model) -> tuple[int, int, float, np.ndarray, np.ndarray]:
-    code, p = law_code(model)
-    nrm = np.require(model.array.normals, np.float64, ["C", "W"])
-    pos = model.array.positions
-    pos = np.zeros((1, 3)) if pos is None else np.require(pos, np.float64, ["C", "W"])
-    return KINDS.index(model.kind), code, p, nrm, pos
+    """Kernel arguments describing a model (kind, law, exponent, normals, positions).
+
+    Cached per model (its array and law never change); writeable copies, so that
+    every call has the same array types (one compiled signature).
+    """
+    hit = _ARRAYS.get(model)
+    if hit is None:
+        code, p = law_code(model)
+        nrm = np.array(model.array.normals, dtype=np.float64, order="C")
+        pos = model.array.positions
+        pos = np.zeros((1, 3)) if pos is None else np.array(pos, dtype=np.float64, order="C")
+        hit = _ARRAYS[model] = (KINDS.index(model.kind), code, p, nrm, pos)
+    return hit
 
 
 def chi2_fisher(model: Model, x: np.ndarray, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

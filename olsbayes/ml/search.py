@@ -18,6 +18,8 @@ intensity).  Cost per move: O(T M N K).
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from .tuples import TUPLE_BUDGET, TuplePlan, tuple_plans, tuple_search
@@ -166,6 +168,39 @@ def _frozen_view(a: np.ndarray, dtype: type = float) -> np.ndarray:
     return v
 
 
+_VIEWS: dict = {}  # id -> (weakref, views) of read-only atom arrays and tuple plans
+
+
+def _memo(obj: object, make, readonly: bool = True) -> tuple:
+    """``make(obj)``, memoised for a live read-only object (the cached atoms, plans)."""
+    hit = _VIEWS.get(id(obj))
+    if hit is not None and hit[0]() is obj:
+        return hit[1]
+    out = make(obj)
+    if readonly:
+        if len(_VIEWS) >= 64:
+            _VIEWS.clear()
+        _VIEWS[id(obj)] = (weakref.ref(obj), out)
+    return out
+
+
+def _atom_views(g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read-only views of the atoms, their squared norms and the unit atoms."""
+    def make(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        gnorm2 = np.einsum("mn,mn->m", a, a)
+        unit = a / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None]
+        return _frozen_view(a), _frozen_view(gnorm2), _frozen_view(unit)
+
+    return _memo(g, make, readonly=not g.flags.writeable)
+
+
+def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
+    """Read-only kernel arguments of a (cached, immutable) tuple plan."""
+    return _memo(plan, lambda p: (
+        _frozen_view(p.atoms), _frozen_view(p.subset, np.int64),
+        _frozen_view(p.columns, np.int64), _frozen_view(p.inv_rows)))
+
+
 def grid_search(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
     budget: int = TUPLE_BUDGET, n_alt: int = 2,
@@ -178,17 +213,14 @@ def grid_search(
     """
     from . import _search_kernel as sk  # numba is imported on first use
 
-    gnorm2 = np.einsum("mn,mn->m", g, g)
-    unit = g / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None]
+    gv, gnorm2, unit = _atom_views(g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
     t, first = data.shape[0], 1 + k * n_alt
     idx = np.empty((t, first + len(plans), k), dtype=np.int64)
-    gv, s = _frozen_view(g), _frozen_view(data)
-    sk.search_trials(gv, _frozen_view(gnorm2), _frozen_view(unit), s, k, max_sweeps, n_alt, idx)
+    s = _frozen_view(data)
+    sk.search_trials(gv, gnorm2, unit, s, k, max_sweeps, n_alt, idx)
     for j, plan in enumerate(plans):
-        sk.tuple_trials(_frozen_view(plan.atoms), _frozen_view(plan.subset, np.int64),
-                        _frozen_view(plan.columns, np.int64), _frozen_view(plan.inv_rows), s,
-                        idx, first + j)
+        sk.tuple_trials(*_plan_views(plan), s, idx, first + j)
     inten, rss = np.empty(idx.shape), np.empty(idx.shape[:2])
     sk.intensities_trials(gv, s, idx, inten, rss)
     return idx, inten, rss
