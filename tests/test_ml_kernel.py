@@ -243,3 +243,14 @@ def test_chi2_fisher_matches_model(geometry):
     np.testing.assert_allclose(-0.5 * chi2 / model.sigma**2 + const, ll, rtol=1e-12)
     ref = model.fisher(x)
     np.testing.assert_allclose(fisher, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+def test_spd_solve_falls_back_to_lu():
+    """The Cholesky solve of the LM step hands a non-SPD matrix to pivoted LU."""
+    for m in (np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]]),  # SPD
+              np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),  # indefinite
+              np.array([[0.0, 1.0], [1.0, 0.0]])):  # zero pivot
+        b = np.arange(1.0, m.shape[0] + 1.0)
+        out = np.empty_like(b)
+        _kernel._solve_spd(m.copy(), b, out)
+        np.testing.assert_allclose(out, np.linalg.solve(m, b), rtol=1e-13, atol=1e-14)

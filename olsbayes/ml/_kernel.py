@@ -92,14 +92,15 @@ def _eval_ring_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
     for k in range(x.size // 2):
         u0, u1, inten = math.cos(x[2 * k]), math.sin(x[2 * k]), x[2 * k + 1]
         row_g, row_a = jt[2 * k + 1], jt[2 * k]
-        for n in range(nrm.shape[0]):
-            c = u0 * nrm[n, 0] + u1 * nrm[n, 1]
-            row_g[n] = max(c, 0.0)
         if want_jac:
             for n in range(nrm.shape[0]):
                 c = u0 * nrm[n, 0] + u1 * nrm[n, 1]
                 dc = -u1 * nrm[n, 0] + u0 * nrm[n, 1]
+                row_g[n] = max(c, 0.0)
                 row_a[n] = inten * dc if c > 0.0 else 0.0
+        else:
+            for n in range(nrm.shape[0]):
+                row_g[n] = max(u0 * nrm[n, 0] + u1 * nrm[n, 1], 0.0)
 
 
 @numba.njit(cache=True)
@@ -237,6 +238,46 @@ def _solve(m, b, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _solve_spd(m, b, out):  # pragma: no cover - compiled
+    """out = m^-1 b for a symmetric positive definite m by Cholesky (m overwritten).
+
+    Falls back to :func:`_solve` (pivoted LU, on the intact upper triangle and
+    diagonal copy) when rounding makes a pivot non-positive.
+    """
+    n = b.size
+    for c in range(n):
+        d = m[c, c]
+        for k in range(c):
+            d -= m[c, k] * m[c, k]
+        if not d > 0.0:  # not numerically SPD: restore the lower triangle, pivot
+            for i in range(n):
+                for j in range(i):
+                    m[i, j] = m[j, i]
+            for i in range(c):
+                m[i, i] = out[i]  # the saved diagonal (below)
+            _solve(m, b, out)
+            return
+        out[c] = m[c, c]  # save the diagonal for the fallback
+        m[c, c] = math.sqrt(d)
+        inv = 1.0 / m[c, c]
+        for i in range(c + 1, n):
+            v = m[i, c]
+            for k in range(c):
+                v -= m[i, k] * m[c, k]
+            m[i, c] = v * inv
+    for i in range(n):  # forward: L y = b
+        acc = b[i]
+        for k in range(i):
+            acc -= m[i, k] * out[k]
+        out[i] = acc / m[i, i]
+    for i in range(n - 1, -1, -1):  # backward: L^T x = y
+        acc = out[i]
+        for k in range(i + 1, n):
+            acc -= m[k, i] * out[k]
+        out[i] = acc / m[i, i]
+
+
+@numba.njit(cache=True)
 def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - compiled
     """Damped, bounded Gauss–Newton step into ``step``; returns the predicted decrease.
 
@@ -249,7 +290,10 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
         top = max(top, a[i, i])
     floor = 1e-9 * max(top, 1e-300)
     for i in range(p):
-        fx[i] = fz[i] or ((i % d1 == d1 - 1) and x[i] <= 0.0 and g[i] <= 0.0)
+        fx[i] = fz[i]
+    for i in range(d1 - 1, p, d1):  # intensities at the bound, gradient outwards
+        fx[i] = fx[i] or (x[i] <= 0.0 and g[i] <= 0.0)
+    for i in range(p):
         gm[i] = 0.0 if fx[i] else g[i]
         for j in range(p):
             ad[i, j] = a[i, j]
@@ -262,7 +306,7 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
     for i in range(p):
         if fx[i]:
             ad[i, i] = 1.0
-    _solve(ad, gm, step)
+    _solve_spd(ad, gm, step)
     pred = 0.0
     for i in range(p):
         acc = 0.0
