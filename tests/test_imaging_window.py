@@ -10,7 +10,7 @@ from olsbayes.imaging import design_matrix, image
 from olsbayes.imaging._window_kernel import _line, truncnorm_inv
 from olsbayes.imaging.sparse import gibbs_intensities
 from olsbayes.imaging.truncated import truncnorm_1d
-from olsbayes.imaging.window import window_moves, window_sweep
+from olsbayes.imaging.window import combine, coordinate_moves, window_moves, window_sweep
 
 
 def _batch_se(draws: np.ndarray, n_batches: int = 20) -> np.ndarray:
@@ -96,9 +96,23 @@ def test_gibbs_with_window_moves_matches_3d_grid():
     y = a @ truth + sigma * np.random.default_rng(5).standard_normal(4)
     moves = window_moves(a, np.array([[0, 1, 2]]), sigma)
     assert moves.n_moves >= 1 and moves.lam.min() < 1e-20  # the null vector is kept
+    # compiled path: single-site, pair and window moves in one random order
     run = gibbs_intensities(a, y, sigma, 1.0, np.full((8, 3), 0.5), 2000,
-                            np.random.default_rng(7), n_burn=20, windows=moves)
+                            np.random.default_rng(7), n_burn=20, windows=moves,
+                            pairs=np.array([[0, 1], [1, 2]]))
     _check(run.samples, *_grid_moments(a, y, sigma, 1.0, n=160))
+
+
+def test_coordinate_moves_are_unit_sites_and_pairs():
+    a = np.array([[1.0, 2.0, 0.5], [0.0, 1.0, 3.0]])
+    m = combine(coordinate_moves(a, np.array([[0, 2]])), window_moves(a, np.array([[0, 1, 2]]),
+                                                                       1.0, slow=1e-9))
+    assert m.n_moves == 3 + 1 + 3 and m.index.shape[1] == 3
+    np.testing.assert_allclose(m.response[1], a[:, 1])  # e_1
+    np.testing.assert_allclose(m.response[3], (a[:, 0] - a[:, 2]) / np.sqrt(2))
+    np.testing.assert_allclose(m.lam, np.sum(m.response**2, axis=1))
+    np.testing.assert_allclose(np.linalg.norm(m.vec, axis=1), 1.0)
+    np.testing.assert_allclose(m.vec[:4, 2], 0.0)  # padding
 
 
 def test_window_moves_on_the_half_line():

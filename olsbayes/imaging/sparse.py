@@ -25,7 +25,7 @@ from scipy.special import expit, log_ndtr
 
 from ..errors import InputError
 from .truncated import truncnorm_1d
-from .window import WindowMoves, window_sweep
+from .window import WindowMoves, combine, coordinate_moves, window_sweep
 
 __all__ = ["GibbsSamples", "gibbs_intensities", "log_ndtr_diff"]
 
@@ -135,7 +135,8 @@ def gibbs_intensities(
     windows : WindowMoves, optional
         Exact moves along the slow eigen-directions of local windows of pixels
         (:mod:`olsbayes.imaging.window`), once each per sweep; box priors only
-        (``spike`` False).
+        (``spike`` False).  With them the single-site, pair and window moves of
+        a sweep run together in compiled code, in one random order.
     """
     if spike and windows is not None and windows.n_moves:
         raise InputError("windows: window moves need the box prior (spike=False); got spike=True")
@@ -150,17 +151,20 @@ def gibbs_intensities(
     pairs = np.zeros((0, 2), dtype=int) if pairs is None else np.asarray(pairs, dtype=int)
     d_pairs = cols[pairs[:, 0]] - cols[pairs[:, 1]]
     n_pairs = np.einsum("pn,pn->p", d_pairs, d_pairs)
+    compiled = None
+    if windows is not None:  # box prior: every move of the sweep in the compiled kernel
+        compiled = combine(coordinate_moves(a, pairs), windows)
     for sweep in range(n_burn + n_samples * thin):
         log_w = np.log(w)
         log_1mw = np.log1p(-w) if spike else None
-        for j in rng.permutation(k):
+        if compiled is not None:
+            window_sweep(x, r, compiled, sigma, i_max, rng)
+        for j in rng.permutation(k) if compiled is None else ():
             _site(x, r, j, cols[j], norm2[j], sigma, i_max, log_w, log_1mw, spike, rng)
-        for p in rng.permutation(pairs.shape[0]):
+        for p in rng.permutation(pairs.shape[0]) if compiled is None else ():
             if n_pairs[p] > 0:
                 _pair(x, r, pairs[p, 0], pairs[p, 1], d_pairs[p], n_pairs[p], sigma, i_max,
                       spike, rng)
-        if windows is not None:
-            window_sweep(x, r, windows, sigma, i_max, rng)
         if spike:
             n_on = np.count_nonzero(x, axis=1)
             w = rng.beta(w_prior[0] + n_on, w_prior[1] + k - n_on)

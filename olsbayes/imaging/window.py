@@ -30,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["WindowMoves", "window_moves", "window_sweep"]
+__all__ = ["WindowMoves", "combine", "coordinate_moves", "line_moves", "window_moves",
+           "window_sweep"]
 
 _ZERO = 1e-9  # direction components below this (relative) are set to exactly zero
 
@@ -97,12 +98,46 @@ def window_moves(
             idx.append(row)
             vecs.append(u / np.linalg.norm(u))
     w = groups.shape[1]
-    index = np.array(idx, dtype=int).reshape(-1, w)
-    vec = np.array(vecs, dtype=float).reshape(-1, w)
-    response = np.einsum("nmw,mw->mn", a[:, index], vec) if vec.size else np.zeros(
-        (0, a.shape[0]))
+    return line_moves(a, np.array(idx, dtype=int).reshape(-1, w),
+                      np.array(vecs, dtype=float).reshape(-1, w))
+
+
+def line_moves(a: np.ndarray, index: np.ndarray, vec: np.ndarray) -> WindowMoves:
+    """Moves along given directions: ``vec[m]`` on pixels ``index[m]``, shapes (M, w)."""
+    index = np.asarray(index, dtype=int)
+    vec = np.asarray(vec, dtype=float)
+    response = np.einsum("nmw,mw->mn", a[:, index], vec)
     lam = np.einsum("mn,mn->m", response, response)
     return WindowMoves(index, vec, np.ascontiguousarray(response), lam)
+
+
+def coordinate_moves(a: np.ndarray, pairs: np.ndarray | None = None) -> WindowMoves:
+    """Single-site moves along every ``e_k`` and pair moves along ``e_k - e_l``.
+
+    The same exact moves as the numpy single-site / pair Gibbs of
+    :mod:`olsbayes.imaging.sparse` (box prior), as :class:`WindowMoves` of
+    width 2 (single sites padded with a zero component) for the compiled sweep.
+    """
+    k = a.shape[1]
+    sites = np.column_stack([np.arange(k), np.arange(k)])
+    svec = np.column_stack([np.ones(k), np.zeros(k)])
+    pairs = np.zeros((0, 2), dtype=int) if pairs is None else np.asarray(pairs, dtype=int)
+    pvec = np.tile([np.sqrt(0.5), -np.sqrt(0.5)], (pairs.shape[0], 1))
+    return line_moves(a, np.vstack([sites, pairs]), np.vstack([svec, pvec]))
+
+
+def combine(*moves: WindowMoves) -> WindowMoves:
+    """One set of moves (directions padded with zeros to the widest window)."""
+    w = max(m.index.shape[1] for m in moves)
+
+    def pad(arr, fill):
+        extra = w - arr.shape[1]
+        return np.hstack([arr, np.repeat(fill, extra, axis=1)]) if extra else arr
+
+    index = np.vstack([pad(m.index, m.index[:, :1]) for m in moves])
+    vec = np.vstack([pad(m.vec, np.zeros((m.vec.shape[0], 1))) for m in moves])
+    return WindowMoves(index, vec, np.vstack([m.response for m in moves]),
+                       np.concatenate([m.lam for m in moves]))
 
 
 def window_sweep(
