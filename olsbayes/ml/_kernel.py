@@ -86,24 +86,24 @@ def _law(c, law, p):  # pragma: no cover - compiled
     return _power(cp, p), p * _power(cp, p - 1.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _eval_ring_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
     """:func:`_eval_far` for the planar ring and the clipped cosine (branch-free loops)."""
     for k in range(x.size // 2):
         u0, u1, inten = math.cos(x[2 * k]), math.sin(x[2 * k]), x[2 * k + 1]
-        row_g, row_a = jt[2 * k + 1], jt[2 * k]
+        ig, ia = 2 * k + 1, 2 * k  # (no row views: each costs reference counting)
         if want_jac:
-            for n in range(nrm.shape[0]):
-                c = u0 * nrm[n, 0] + u1 * nrm[n, 1]
-                dc = -u1 * nrm[n, 0] + u0 * nrm[n, 1]
-                row_g[n] = max(c, 0.0)
-                row_a[n] = inten * dc if c > 0.0 else 0.0
+            for n in range(nrm.shape[1]):
+                c = u0 * nrm[0, n] + u1 * nrm[1, n]
+                dc = -u1 * nrm[0, n] + u0 * nrm[1, n]
+                jt[ig, n] = max(c, 0.0)
+                jt[ia, n] = inten * dc if c > 0.0 else 0.0
         else:
-            for n in range(nrm.shape[0]):
-                row_g[n] = max(u0 * nrm[n, 0] + u1 * nrm[n, 1], 0.0)
+            for n in range(nrm.shape[1]):
+                jt[ig, n] = max(u0 * nrm[0, n] + u1 * nrm[1, n], 0.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _eval_far(kind, law, p, nrm, x, jt, want_jac):  # pragma: no cover - compiled
     """Rows of jt (P, N): g(c) per source, and with want_jac the location rows."""
     d1 = 2 if kind == 0 else 3
@@ -119,45 +119,45 @@ def _eval_far(kind, law, p, nrm, x, jt, want_jac):  # pragma: no cover - compile
             cla, sla = math.cos(x[b + 1]), math.sin(x[b + 1])
             clo, slo = math.cos(x[b]), math.sin(x[b])
             u0, u1, u2 = cla * clo, cla * slo, sla
-        for n in range(nrm.shape[0]):
+        for n in range(nrm.shape[1]):
             if kind == 0:
-                c = u0 * nrm[n, 0] + u1 * nrm[n, 1]
+                c = u0 * nrm[0, n] + u1 * nrm[1, n]
             else:
-                c = u0 * nrm[n, 0] + u1 * nrm[n, 1] + u2 * nrm[n, 2]
+                c = u0 * nrm[0, n] + u1 * nrm[1, n] + u2 * nrm[2, n]
             g, dg = _law(c, law, p)
             jt[b + d1 - 1, n] = g
             if want_jac:
                 w = inten * dg
                 if kind == 0:
-                    jt[b, n] = w * (-u1 * nrm[n, 0] + u0 * nrm[n, 1])
+                    jt[b, n] = w * (-u1 * nrm[0, n] + u0 * nrm[1, n])
                 else:
-                    jt[b, n] = w * (-cla * slo * nrm[n, 0] + cla * clo * nrm[n, 1])
-                    jt[b + 1, n] = w * (-sla * clo * nrm[n, 0] - sla * slo * nrm[n, 1]
-                                        + cla * nrm[n, 2])
+                    jt[b, n] = w * (-cla * slo * nrm[0, n] + cla * clo * nrm[1, n])
+                    jt[b + 1, n] = w * (-sla * clo * nrm[0, n] - sla * slo * nrm[1, n]
+                                        + cla * nrm[2, n])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _eval_near(law, p, nrm, pos, x, jt, want_jac):  # pragma: no cover - compiled
     """As :func:`_eval_far` for near sources (positions): g(c) / r^2 and its gradient."""
     for k in range(x.size // 4):
         b = k * 4
         inten = x[b + 3]
-        for n in range(nrm.shape[0]):
-            d0, d1, d2 = x[b] - pos[n, 0], x[b + 1] - pos[n, 1], x[b + 2] - pos[n, 2]
+        for n in range(nrm.shape[1]):
+            d0, d1, d2 = x[b] - pos[0, n], x[b + 1] - pos[1, n], x[b + 2] - pos[2, n]
             r2 = d0 * d0 + d1 * d1 + d2 * d2
             r = math.sqrt(r2)
-            c = (d0 * nrm[n, 0] + d1 * nrm[n, 1] + d2 * nrm[n, 2]) / r
+            c = (d0 * nrm[0, n] + d1 * nrm[1, n] + d2 * nrm[2, n]) / r
             g, dg = _law(c, law, p)
             jt[b + 3, n] = g / r2
             if want_jac:
                 e, f = dg / r2, 2.0 * g / (r2 * r2)
                 cr = c / r2
-                jt[b, n] = inten * (e * (nrm[n, 0] / r - cr * d0) - f * d0)
-                jt[b + 1, n] = inten * (e * (nrm[n, 1] / r - cr * d1) - f * d1)
-                jt[b + 2, n] = inten * (e * (nrm[n, 2] / r - cr * d2) - f * d2)
+                jt[b, n] = inten * (e * (nrm[0, n] / r - cr * d0) - f * d0)
+                jt[b + 1, n] = inten * (e * (nrm[1, n] / r - cr * d1) - f * d1)
+                jt[b + 2, n] = inten * (e * (nrm[2, n] / r - cr * d2) - f * d2)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _residual(kind, law, p, nrm, pos, x, s, jt, r, want_jac):  # pragma: no cover
     """Fill jt (intensity rows, + location rows if want_jac) and r = s - response; chi^2."""
     if kind == 2:
@@ -165,17 +165,27 @@ def _residual(kind, law, p, nrm, pos, x, s, jt, r, want_jac):  # pragma: no cove
     else:
         _eval_far(kind, law, p, nrm, x, jt, want_jac)
     d1 = kind + 2
-    chi2 = 0.0
     for n in range(s.size):
-        mu = 0.0
-        for k in range(x.size // d1):
-            mu += jt[k * d1 + d1 - 1, n] * x[k * d1 + d1 - 1]
-        r[n] = s[n] - mu
-        chi2 += r[n] * r[n]
-    return chi2
+        r[n] = 0.0
+    for k in range(x.size // d1):  # r = response, summed over sources in order
+        row = k * d1 + d1 - 1
+        for n in range(s.size):
+            r[n] += jt[row, n] * x[row]
+    for n in range(s.size):
+        r[n] = s[n] - r[n]
+    return _sumsq(r)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath={"reassoc"}, inline="always")
+def _sumsq(r):  # pragma: no cover - compiled
+    """Sum of squares (SIMD partial sums)."""
+    acc = 0.0
+    for n in range(r.size):
+        acc += r[n] * r[n]
+    return acc
+
+
+@numba.njit(cache=True, inline="always")
 def _project(kind, zfl, x):  # pragma: no cover - compiled
     """Feasible set in place: intensity >= 0, |lat| <= pi/2, z >= zfl."""
     d1 = kind + 2
@@ -237,7 +247,7 @@ def _solve(m, b, out):  # pragma: no cover - compiled
         out[i] = acc / m[i, i]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _solve_spd(m, b, out):  # pragma: no cover - compiled
     """out = m^-1 b for a symmetric positive definite m by Cholesky (m overwritten).
 
@@ -277,7 +287,7 @@ def _solve_spd(m, b, out):  # pragma: no cover - compiled
         out[i] = acc / m[i, i]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - compiled
     """Damped, bounded Gauss–Newton step into ``step``; returns the predicted decrease.
 
@@ -414,9 +424,9 @@ def _arrays(model: Model) -> tuple[int, int, float, np.ndarray, np.ndarray]:
     hit = _ARRAYS.get(model)
     if hit is None:
         code, p = law_code(model)
-        nrm = np.array(model.array.normals, dtype=np.float64, order="C")
+        nrm = np.array(model.array.normals.T, dtype=np.float64, order="C")  # (D, N)
         pos = model.array.positions
-        pos = np.zeros((1, 3)) if pos is None else np.array(pos, dtype=np.float64, order="C")
+        pos = np.zeros((3, 1)) if pos is None else np.array(pos.T, dtype=np.float64, order="C")
         hit = _ARRAYS[model] = (KINDS.index(model.kind), code, p, nrm, pos)
     return hit
 
