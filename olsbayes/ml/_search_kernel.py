@@ -171,21 +171,24 @@ def search_trials(g, gnorm2, unit, data, k, max_sweeps, n_alt, out):  # pragma: 
 
 
 @numba.njit(cache=True)
-def _tuple_scores(corr, columns, inv_rows, out):  # pragma: no cover - compiled
-    """RSS drop of every coarse K-tuple, -inf where an intensity would be < 0.
+def _best_tuple(corr, columns, inv_rows):  # pragma: no cover - compiled
+    """Index of the first feasible K-tuple with the largest RSS drop (0 if none).
 
     coef_a = sum_b A^-1_ab corr_b and score = sum_a corr_a coef_a, summed in the
-    order of tuples.tuple_search; K = 2 and 3 unrolled (branch-free, SIMD gathers).
+    order of tuples.tuple_search; a tuple with some coef_a < 0 is infeasible.  K = 2
+    and 3 unrolled; ``columns`` unsigned (no negative-index wraparound per gather).
     """
     k, n_c = columns.shape
+    best, arg = -np.inf, 0
     if k == 2:
         for c in range(n_c):
             b0, b1 = corr[columns[0, c]], corr[columns[1, c]]
             f0 = inv_rows[0, 0, c] * b0 + inv_rows[0, 1, c] * b1
             f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1
             sc = b0 * f0 + b1 * f1
-            out[c] = sc if (f0 >= 0.0) & (f1 >= 0.0) else -np.inf
-        return
+            if (f0 >= 0.0) & (f1 >= 0.0) & (sc > best):
+                best, arg = sc, c
+        return arg
     if k == 3:
         for c in range(n_c):
             b0, b1, b2 = corr[columns[0, c]], corr[columns[1, c]], corr[columns[2, c]]
@@ -193,8 +196,9 @@ def _tuple_scores(corr, columns, inv_rows, out):  # pragma: no cover - compiled
             f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1 + inv_rows[1, 2, c] * b2
             f2 = inv_rows[2, 0, c] * b0 + inv_rows[2, 1, c] * b1 + inv_rows[2, 2, c] * b2
             sc = b0 * f0 + b1 * f1 + b2 * f2
-            out[c] = sc if (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) else -np.inf
-        return
+            if (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) & (sc > best):
+                best, arg = sc, c
+        return arg
     for c in range(n_c):
         sc, feasible = 0.0, True
         for a in range(k):
@@ -203,18 +207,19 @@ def _tuple_scores(corr, columns, inv_rows, out):  # pragma: no cover - compiled
                 cf += inv_rows[a, b, c] * corr[columns[b, c]]
             feasible = feasible and cf >= 0.0
             sc += corr[columns[a, c]] * cf
-        out[c] = sc if feasible else -np.inf
+        if feasible and sc > best:
+            best, arg = sc, c
+    return arg
 
 
 @numba.njit(cache=True)
 def tuple_trials(atoms, subset, columns, inv_rows, data, out, col):  # pragma: no cover
     """Best feasible K-tuple of one coarse plan per trial into out[:, col] (tuples.tuple_search)."""
-    k, n_c = columns.shape
-    corr, score = np.empty(atoms.shape[0]), np.empty(n_c)
+    k = columns.shape[0]
+    corr = np.empty(atoms.shape[0])
     for i in range(data.shape[0]):
         _matvec(atoms, data[i], corr)
-        _tuple_scores(corr, columns, inv_rows, score)
-        arg = _argmax(score)
+        arg = _best_tuple(corr, columns, inv_rows)
         for a in range(k):
             out[i, col, a] = subset[columns[a, arg]]
 

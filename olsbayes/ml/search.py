@@ -198,7 +198,7 @@ def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
     """Read-only kernel arguments of a (cached, immutable) tuple plan."""
     return _memo(plan, lambda p: (
         _frozen_view(p.atoms), _frozen_view(p.subset, np.int64),
-        _frozen_view(p.columns, np.int64), _frozen_view(p.inv_rows)))
+        _frozen_view(p.columns, np.uint64), _frozen_view(p.inv_rows)))
 
 
 def grid_search(
