@@ -17,9 +17,10 @@ from ..model import Model
 from .criteria import aic, bic
 from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
+from .mixture import mixture_log_evidence
 from .nested import nested_log_evidence
 
-__all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "nested_work",
+__all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
            "information_criterion", "scalar_log_likelihood"]
 
 
@@ -57,6 +58,43 @@ def ridge_work(model: Model, work: KWork, prior) -> KWork:
            "(rough: unidentifiable directions span the whole prior)")
     return dataclasses.replace(work, value=float(log_z), laplace=float(log_z),
                                method="laplace", reasons=work.reasons + (why,))
+
+
+#: An importance-sampling evidence is itself in doubt beyond this standard error
+#: (nats) or below this effective sample size.
+MIXTURE_MAX_ERROR = 0.3
+MIXTURE_MIN_ESS = 20.0
+
+
+def mixture_work(model: Model, data: np.ndarray, work: KWork, prior,
+                 lower: list[np.ndarray], rng: np.random.Generator,
+                 n_draws: int) -> KWork:
+    """Replace an untrusted or undefined Laplace value by the mixture importance-sampling
+    evidence (:func:`~olsbayes.select.mixture.mixture_log_evidence`); the Laplace value
+    and its reasons are kept, and the sampler's own doubts (large error, few effective
+    draws, no draw of positive weight) are added to the reasons."""
+    out = mixture_log_evidence(model, data, prior, work.params, lower, n_draws=n_draws,
+                               rng=rng, max_draws=4 * n_draws, target_error=0.15)
+    why = ()
+    if not np.isfinite(out.log_evidence):
+        why = ("importance sampling found no draw of positive weight",)
+    elif out.error > MIXTURE_MAX_ERROR or out.ess < MIXTURE_MIN_ESS:
+        why = (f"importance-sampling evidence uncertain (+-{out.error:.2f} nats, "
+               f"{out.ess:.0f} effective draws)",)
+    value = out.log_evidence if np.isfinite(out.log_evidence) else math.nan
+    stats = {**(work.stats or {}), "mixture_error": out.error, "mixture_ess": out.ess}
+    return dataclasses.replace(
+        work, value=float(value), error=float(out.error), method="importance",
+        reasons=work.reasons + why, n_calls=work.n_calls + out.n_draws,
+        seconds=work.seconds + out.seconds, stats=stats)
+
+
+def mixture_doubt(work: KWork) -> bool:
+    """Whether a mixture importance-sampling value is itself in doubt."""
+    st = work.stats or {}
+    return work.method == "importance" and not (
+        st.get("mixture_error", math.inf) <= MIXTURE_MAX_ERROR
+        and st.get("mixture_ess", 0.0) >= MIXTURE_MIN_ESS)
 
 
 def laplace_work(model: Model, k: int, fitted: tuple, prior,

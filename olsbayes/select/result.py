@@ -26,9 +26,12 @@ class KEvidence:
         criteria the pseudo-evidence -BIC/2 or -AIC/2.
     error : float
         Its standard error (nats): 0 for a closed form, dynesty's ``logzerr`` for
-        nested sampling, NaN where no error is defined (Laplace, BIC, AIC).
+        nested sampling, the delta-method error of importance sampling, NaN where
+        no error is defined (Laplace, BIC, AIC).
     method : str
-        ``"closed-form"``, ``"laplace"``, ``"nested"``, ``"bic"`` or ``"aic"``.
+        ``"closed-form"``, ``"laplace"``, ``"importance"`` (mixture importance
+        sampling over the locations, where Laplace is untrusted), ``"nested"``,
+        ``"bic"`` or ``"aic"``.
     log_likelihood : float
         Maximum log-likelihood (of the ML fit; of the data for K = 0).
     n_params : int
@@ -40,7 +43,9 @@ class KEvidence:
     trusted : bool
         Whether the Laplace approximation is expected to hold here.
     reasons : tuple of str
-        Why the Laplace approximation is not trusted (empty when it is).
+        Why the Laplace approximation is not trusted (empty when it is), then any
+        doubt about what replaced it (importance-sampling error > 0.3 nats or < 20
+        effective draws; nested sampling stopped at ``maxcall``).
     n_calls : int
         Likelihood evaluations spent on this K by the evidence estimator.
     seconds : float

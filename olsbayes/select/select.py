@@ -3,8 +3,14 @@
 Pipeline.  K = 0 (noise only) has a closed-form evidence.  Every K >= 1 gets an
 ML fit (non-negative intensities: unconstrained fits let BIC/AIC pick a spurious
 extra source on 5-8 % of three-source scenes) and its Laplace evidence with
-trust diagnostics.  ``method="auto"`` then recomputes by nested sampling only
-the competing K whose Laplace value is not to be trusted, or whose comparison
+trust diagnostics.  Where Laplace is not to be trusted or undefined (an extra
+source at intensity 0 with a free location, a singular Fisher matrix, a weak or
+close source) the evidence is computed instead by importance sampling over the
+source locations with the intensities integrated analytically
+(:mod:`olsbayes.select.mixture`, a few ms); Laplace is kept where it is trusted
+(within 0.3 nats of nested sampling there).  ``method="auto"`` then recomputes by
+nested sampling only the competing K whose Laplace value is not to be trusted
+(whatever replaced it), or whose comparison
 with the best K is not decisive (at most ``max_escalations`` K, most probable
 first).  Finally p(K | data) is proportional to Z_K p(K), and the chosen K is the
 *smallest* K within ``tie`` nats of the most probable one: when the data barely
@@ -27,11 +33,14 @@ from .engine import (
     KWork,
     information_criterion,
     laplace_work,
+    mixture_doubt,
+    mixture_work,
     nested_work,
     noise_work,
     ridge_work,
 )
 from .fits import fit_all
+from .mixture import MAX_SOURCES
 from .result import KEvidence, SelectionResult
 
 __all__ = ["select_k", "METHODS", "K_MAX_LIMIT"]
@@ -39,9 +48,11 @@ __all__ = ["select_k", "METHODS", "K_MAX_LIMIT"]
 METHODS = ("auto", "laplace", "nested", "bic", "aic")
 #: Hard upper limit of k_max (the evidence of more sources is beyond any sampler budget).
 K_MAX_LIMIT = 8
-#: Gain of log L over every smaller K (nats) from which a K with a singular Fisher
-#: matrix gets the rough prior-ridge Laplace value instead of none: far beyond the
-#: noise-only gains of an extra source (95 % < 3, largest of 300 draws ~6.5).
+#: Only without the importance-sampling evidence (``importance_draws=0``, or K above
+#: :data:`~olsbayes.select.mixture.MAX_SOURCES`): gain of log L over every smaller K
+#: (nats) from which a K with a singular Fisher matrix gets the rough prior-ridge
+#: Laplace value instead of none (p = 0): far beyond the noise-only gains of an extra
+#: source (95 % < 3, largest of 300 draws ~6.5).
 RIDGE_GAIN = 10.0
 #: Nats within which a trusted Laplace comparison counts as at the decision boundary.
 TRUSTED_MARGIN = 1.0
@@ -103,25 +114,31 @@ def _next_escalation(works: list[KWork], log_pk: np.ndarray, decisive: float, ti
     neighbour of the most probable K whose Laplace value does not exist, unless
     its likelihood maximum (an upper bound on Z_K) already loses decisively.  A K
     above the most probable one whose ML fit gains less than ``min_gain`` nats of
-    log-likelihood over it is not sent: its extra source only fits noise.
+    log-likelihood over it is not sent: its extra source only fits noise; nor is
+    the comparison with such a K a reason to send the most probable one (nested
+    sampling of the latter would not sharpen the former, whose value comes from
+    Laplace or from importance sampling over its free locations).
     """
     score = np.array([w.value for w in works]) + log_pk
     finite = np.isfinite(score)
     top = int(np.nanargmax(np.where(finite, score, -np.inf)))
     order = np.argsort(-np.where(finite, score, -np.inf), kind="stable")
     competing = [int(k) for k in order if finite[k] and score[k] >= score[top] - decisive]
+    rivals = [k for k in competing if not _noise_only(works, k, top, min_gain)]
     candidates: list[tuple[int, str]] = []
-    for k in competing:
+    for k in rivals:
         w = works[k]
-        if k == 0 or w.method == "nested" or _noise_only(works, k, top, min_gain):
+        if k == 0 or w.method == "nested":
             continue
         why = list(w.reasons)
-        if len(competing) > 1:
-            other = competing[1] if k == top else top
+        if len(rivals) > 1:
+            other = rivals[1] if k == top else top
             gap = score[k] - score[other]
             # a trusted Laplace value (error ~0.3 nats) matters only near the decision
             if why or abs(abs(gap) - tie) < TRUSTED_MARGIN:
-                why.insert(0, f"not decisive against K={other} ({gap:+.2f} nats by Laplace)")
+                how = "importance sampling" if "importance" in (
+                    w.method, works[other].method) else "Laplace"
+                why.insert(0, f"not decisive against K={other} ({gap:+.2f} nats by {how})")
         if why:
             candidates.append((k, "; ".join(why)))
     for k in (top - 1, top + 1):  # a neighbour whose Laplace value does not exist
@@ -180,6 +197,7 @@ def select_k(
     dlogz: float = 0.5,
     thresholds: Mapping[str, float] | None = None,
     fit_kwargs: Mapping[str, object] | None = None,
+    importance_draws: int = 1000,
 ) -> SelectionResult:
     """Evidence for K = 0..k_max sources and the posterior over K.
 
@@ -223,17 +241,22 @@ def select_k(
         ``auto`` does not escalate a K above the most probable one whose ML
         log-likelihood exceeds that K's by less than this (nats): on K = 1 truths
         (ring N = 30) the gain of a second source is below 3 nats in 95 % of
-        noise draws.  (A K whose Fisher matrix is singular at its ML point gets
-        the rough prior-ridge Laplace fallback only if it gains at least
-        ``RIDGE_GAIN`` = 10 nats over every smaller K -- the data need more
-        sources but cannot place them; otherwise it gets no evidence estimate:
-        p = 0, noted.)
+        noise draws.
     dlogz : float
         dynesty's stopping tolerance on the remaining evidence (nats).
     thresholds : mapping, optional
         Overrides of :data:`olsbayes.select.diagnostics.THRESHOLDS`.
     fit_kwargs : mapping, optional
         Extra keyword arguments of :func:`olsbayes.ml.fit_ml`.
+    importance_draws : int
+        Initial draws of the mixture importance sampler
+        (:func:`~olsbayes.select.mixture.mixture_log_evidence`) that replaces every
+        untrusted or undefined Laplace value for K <= 5 (methods ``laplace`` and
+        ``auto``): intensities at their bound 0, (nearly) free locations, singular
+        Fisher matrices.  Doubled up to 4x until its error is below 0.15 nats.  0
+        restores the bare Laplace rule (an undefined Laplace value gets the rough
+        prior-ridge fallback if its ML fit gains >= ``RIDGE_GAIN`` = 10 nats over
+        every smaller K, else p = 0).
 
     Returns
     -------
@@ -255,12 +278,15 @@ def select_k(
     max_escalations = integer("max_escalations", max_escalations, low=0)
     min_gain = nonnegative_float("min_gain", min_gain)
     maxcall = integer("maxcall", maxcall, low=1000)
+    importance_draws = integer("importance_draws", importance_draws, low=0)
+    if 0 < importance_draws < 100:
+        raise InputError(f"importance_draws must be 0 or >= 100; got {importance_draws}")
     streams = as_rng(rng).spawn(k_max + 1)
     prior_of = _prior_factory(model, data, priors, i_max)
     log_pk = _count_prior(k_prior, k_max)
     nested_opts = {"maxcall": maxcall, "nlive": nlive, "dlogz": positive_float("dlogz", dlogz)}
 
-    pairs = [s.spawn(2) for s in streams]  # (fit, nested) streams per K
+    pairs = [s.spawn(3) for s in streams]  # (fit, nested, importance) streams per K
     t_fit = time.perf_counter()
     fitted = fit_all(model, data, k_max, [p[0] for p in pairs], fit_kwargs)
     t_fit = (time.perf_counter() - t_fit) / max(k_max, 1)
@@ -270,6 +296,10 @@ def select_k(
             works.append(information_criterion(model, k, fitted[k], method, t_fit))
             continue
         w = laplace_work(model, k, fitted[k], prior_of(k), thresholds, t_fit)
+        if (method != "nested" and importance_draws and k <= MAX_SOURCES
+                and (w.reasons or not np.isfinite(w.value))):
+            lower = [fitted[j][1] for j in (k - 1, k - 2) if j >= 1]
+            w = mixture_work(model, data, w, prior_of(k), lower, pairs[k][2], importance_draws)
         gain = w.log_likelihood - max(v.log_likelihood for v in works)
         if not np.isfinite(w.value) and gain >= RIDGE_GAIN:
             # the data need more than K-1 sources but K is not identifiable
@@ -300,11 +330,14 @@ def _finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict
     prob /= prob.sum()
     best, notes = _choose(score, tie)
     for w in works:
-        if method == "auto" and w.method == "laplace" and w.reasons and w.k > best and (
-                w.log_likelihood - works[best].log_likelihood < min_gain):
+        if method == "auto" and w.method in ("laplace", "importance") and w.reasons and (
+                w.k > best and w.log_likelihood - works[best].log_likelihood < min_gain):
             low = ("; its p(K) rests on the untrusted Laplace value, which can be several "
                    "nats low for an over-complete K (a source split within one sensor spacing "
                    "predicts the same readings)") if np.isfinite(w.value) else ""
+            if w.method == "importance" and np.isfinite(w.value):
+                low = (f"; its p(K) rests on the importance-sampling evidence (+-{w.error:.2f} "
+                       "nats), which integrates the free location of the extra source")
             notes.append(f"K={w.k}: not escalated, its ML fit gains only "
                          f"{w.log_likelihood - works[best].log_likelihood:.2f} nats of log L "
                          f"over K={best} (< min_gain={min_gain:g}): the extra source fits "
@@ -313,9 +346,15 @@ def _finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict
             notes.append(f"K={w.k}: no evidence estimate ({'; '.join(w.reasons)}); p(K) set to 0")
         elif w.method == "laplace" and w.reasons and score[w.k] >= score.max() - decisive:
             notes.append(f"K={w.k}: Laplace evidence not to be trusted ({'; '.join(w.reasons)})")
-    untrusted_best = works[best].method == "laplace" and works[best].reasons
+        elif w.method == "importance" and score[w.k] >= score.max() - decisive:
+            notes.append(f"K={w.k}: Laplace evidence not to be trusted, importance sampling "
+                         f"over the locations used instead ({w.value:.2f} +- {w.error:.2f} "
+                         "nats)")
+    untrusted_best = (works[best].method == "laplace" and works[best].reasons) or (
+        mixture_doubt(works[best]))
     if untrusted_best and method == "laplace":
-        warnings.warn(f"the chosen K={best} rests on a Laplace evidence that is not to be "
+        what = "an importance-sampling" if works[best].method == "importance" else "a Laplace"
+        warnings.warn(f"the chosen K={best} rests on {what} evidence that is not to be "
                       f"trusted ({'; '.join(works[best].reasons)}); try method='auto'",
                       EvidenceWarning, stacklevel=3)
     evidences = tuple(

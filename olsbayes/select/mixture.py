@@ -1,0 +1,401 @@
+"""Evidence of an awkward K by importance sampling over source locations only.
+
+Where the Laplace approximation fails -- an extra source whose intensity sits at
+its bound 0 (its location then barely constrained: the Gaussian in location with
+the Fisher width is the wrong volume), a singular Fisher matrix (a source split
+within one sensor spacing predicts the same readings), a weak or close source --
+the evidence is computed by importance sampling.  Two facts make this cheap:
+
+* The readings are linear in the intensities, ``y = G(loc) I + noise``.  For
+  fixed locations the likelihood is Gaussian in I with mean I^ = (G^T G)^-1 G^T y
+  and covariance C = sigma^2 (G^T G)^-1, so drawing I from that Gaussian leaves
+  the weight  max_I L(loc, I) (2 pi)^(K/2) det(C)^(1/2) pi(loc, I) / q(loc),
+  exact for any intensity prior (a box prior: the indicator of the box).  Only
+  the K locations are proposed.
+* The proposal is a defensive mixture of products over sources: the K-source ML
+  locations with their Fisher widths (and, wider, one sensor spacing), the
+  (K-1)-source ML locations plus one source anywhere in the prior, and the
+  prior itself.  A source whose intensity is within one sd of 0 is proposed from
+  the prior (its location is not constrained).  The mixture is symmetrised over
+  the K! labellings (its density summed over the permutations of the sources),
+  so the estimate integrates the full labelled space and needs no K! factor,
+  also where the labelled copies overlap (a split source, a free source).
+
+log Z = log mean(w) with standard error sd(w) / (mean(w) sqrt(n)) (delta method)
+and Kish's effective sample size.  Checked against the exact grid evidence of
+:mod:`olsbayes.studies.sbc_exact` (tests/test_select_mixture.py).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import log_ndtr
+
+from .._validation import as_rng, integer, positive_float
+from ..crlb import bound_covariance
+from ..errors import InputError
+from .diagnostics import sensor_spacing
+
+__all__ = ["MixtureEvidence", "mixture_log_evidence", "location_scales", "MAX_SOURCES"]
+
+#: Largest K handled (the symmetrised density sums over K! permutations).
+MAX_SOURCES = 5
+#: Mixture weights: K-fit, (K-1)-fit + one extra source, (K-2)-fit + two extra
+#: sources, prior.  Weights of missing lower fits go to the K-fit.
+WEIGHTS = (0.6, 0.2, 0.15, 0.05)
+#: Each constrained source of a fit is proposed from a normal with its (inflated)
+#: Fisher sd, a normal one sensor spacing wide, or its prior, with these weights.
+SOURCE_MIX = (0.6, 0.25, 0.15)
+#: An extra (free) source is proposed one sensor spacing wide around one of the
+#: fitted sources (a split source), or with this probability from its prior.
+EXTRA_PRIOR = 0.5
+#: Narrow components inflate the Fisher sd by this factor (heavier than the target).
+INFLATE = 1.5
+#: Largest sd (rad) of a proposal normal on a periodic coordinate (nearest image exact).
+MAX_PERIODIC_SD = 0.5
+#: sd of the wide proposal normals, in sensor spacings (a split source's pair spreads
+#: about this far around the fitted location).
+WIDE = 0.5
+#: A source whose ML intensity is below this many sd is proposed from the prior.
+FREE_SNR = 1.0
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+@dataclass(frozen=True)
+class MixtureEvidence:
+    """log Z_K by mixture importance sampling over locations.
+
+    Attributes
+    ----------
+    log_evidence : float
+        Nats; -inf if no draw has positive weight.
+    error : float
+        Delta-method standard error of log Z (nats).
+    ess : float
+        Kish effective sample size (sum w)^2 / sum w^2.
+    n_draws : int
+        Location draws (= likelihood evaluations).
+    seconds : float
+    """
+
+    log_evidence: float
+    error: float
+    ess: float
+    n_draws: int
+    seconds: float
+
+
+def location_scales(model, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-source location sd (K, d) at an ML point and which sources are free (K,).
+
+    From the inverse Fisher matrix; a source whose coordinates are unidentifiable
+    there (singular Fisher matrix) gets the sd of its own (d+1)-block alone.  A
+    source is *free* (to be proposed from the prior) if its intensity is less
+    than ``FREE_SNR`` sd above 0 or its location sd is undefined.  Location sds
+    are capped at one sensor spacing.
+    """
+    x = np.asarray(params, float)
+    k, w = model.n_sources_of(x), model.n_loc + 1
+    if k == 0:
+        return np.zeros((0, w - 1)), np.zeros(0, bool)
+    f = model.fisher(x)
+    cov, _, singular = bound_covariance(f)
+    var = np.diag(cov).reshape(k, w).copy()
+    for s in range(k):
+        blk = slice(s * w, (s + 1) * w)
+        if singular[blk].any():
+            c, _, sing = bound_covariance(f[blk, blk])
+            var[s] = np.where(sing, np.inf, np.diag(c))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sd = np.sqrt(np.where(var > 0, var, np.nan))
+    snr = x.reshape(k, w)[:, -1] / sd[:, -1]
+    loc_sd = np.minimum(sd[:, :-1], sensor_spacing(model))
+    free = ~(snr >= FREE_SNR) | ~np.all(np.isfinite(loc_sd), axis=1)
+    return np.where(np.isfinite(loc_sd), loc_sd, np.nan), free
+
+
+@dataclass(frozen=True, eq=False)
+class _Component:
+    """One product component: source a is drawn from normal m (centre ``mu[a, m]``,
+    sd ``sd[a, m]``) with probability ``w[a, m]``, or from its prior with ``w[a, -1]``."""
+
+    weight: float
+    mu: np.ndarray  # (K, M, d)
+    sd: np.ndarray  # (K, M, d)
+    w: np.ndarray  # (K, M + 1)
+
+
+def _fit_component(model, prior, weight: float, params: np.ndarray, n_extra: int
+                   ) -> _Component:
+    """The sources of ``params`` (narrow, one spacing wide, or prior) plus ``n_extra``
+    free sources (near one of the fitted sources, one spacing wide, or prior)."""
+    k, d = prior.n_sources, model.n_loc
+    n_fit = k - n_extra
+    h = sensor_spacing(model)
+    per = np.array([m.periodic for m in prior.location])
+    cap = np.where(per, min(WIDE * h, MAX_PERIODIC_SD), WIDE * h)
+    big = max(2, n_fit)
+    mu, sd = np.zeros((k, big, d)), np.ones((k, big, d))
+    w = np.zeros((k, big + 1))
+    w[:, -1] = 1.0
+    if n_fit:
+        scale, free = location_scales(model, params)
+        centre = np.asarray(params, float).reshape(n_fit, d + 1)[:, :-1]
+        narrow = np.minimum(INFLATE * np.maximum(np.nan_to_num(scale, nan=h), 1e-6 * h), cap)
+        for a in np.flatnonzero(~free):
+            mu[a, :2], sd[a, 0], sd[a, 1] = centre[a], narrow[a], cap
+            w[a, :2], w[a, -1] = SOURCE_MIX[:2], SOURCE_MIX[2]
+        for a in range(n_fit, k):  # an extra source near any fitted one, or anywhere
+            mu[a, :n_fit], sd[a, :n_fit] = centre, cap
+            w[a, :n_fit], w[a, -1] = (1.0 - EXTRA_PRIOR) / n_fit, EXTRA_PRIOR
+    return _Component(weight, mu, sd, w)
+
+
+def _components(model, fit_k: np.ndarray, lower: list[np.ndarray], prior
+                ) -> list[_Component]:
+    """K-fit, (K-j)-fits plus j extra sources, and the prior (see :data:`WEIGHTS`)."""
+    k = prior.n_sources
+    lower = [f for f in lower if 0 < model.n_sources_of(f) < k][: len(WEIGHTS) - 2]
+    spare = sum(WEIGHTS[1:len(WEIGHTS) - 1][len(lower):])
+    out = [_fit_component(model, prior, WEIGHTS[0] + spare, fit_k, 0)]
+    for w, f in zip(WEIGHTS[1:], lower):
+        out.append(_fit_component(model, prior, w, f, k - model.n_sources_of(f)))
+    out.append(_fit_component(model, prior, WEIGHTS[-1], np.zeros(0), k))
+    return out
+
+
+def _draw(comp: _Component, prior, n: int, gen: np.random.Generator) -> np.ndarray:
+    """n location draws (n, K, d) of one component (each source picks its sub-proposal)."""
+    k, big, d = comp.mu.shape
+    cum = np.cumsum(comp.w, axis=1)
+    pick = np.minimum((gen.random((n, k, 1)) > cum[None, :, :-1]).sum(axis=-1), big)
+    rows = np.arange(k)[None, :]
+    mu = comp.mu[rows, np.minimum(pick, big - 1)]  # (n, K, d)
+    sd = comp.sd[rows, np.minimum(pick, big - 1)]
+    out = mu + sd * gen.standard_normal((n, k, d))
+    for j, marg in enumerate(prior.location):
+        if marg.periodic:
+            out[..., j] = marg.lower + np.mod(out[..., j] - marg.lower, marg.upper - marg.lower)
+        out[..., j] = np.where(pick == big, marg.ppf(gen.random((n, k))), out[..., j])
+    return out
+
+
+def _log_prior_loc(prior, loc: np.ndarray) -> np.ndarray:
+    """log prior density (n, K) of each draw source's location."""
+    total = np.zeros(loc.shape[:2])
+    for j, marg in enumerate(prior.location):
+        if marg.flat:
+            total += float(marg.log_prob(np.asarray(0.5 * (marg.lower + marg.upper))))
+        else:
+            total += np.asarray(marg.log_prob(loc[..., j]), float)
+    return total
+
+
+def _q_matrix(comp: _Component, prior, loc: np.ndarray, prior_q: np.ndarray) -> np.ndarray:
+    """Density (n, K, K) of component source a (axis 1) at draw source b (axis 2).
+
+    A periodic coordinate's normal is wrapped with the nearest image only: its sd
+    is at most ``MAX_PERIODIC_SD`` = 0.5 rad, so the other images weigh < 3e-9.
+    """
+    k, big, d = comp.mu.shape
+    live = np.flatnonzero(comp.w[:, :-1].any(axis=0))  # sub-normals in use
+    q = comp.w[None, :, -1, None] * prior_q[:, None, :]
+    if live.size == 0:
+        return q
+    mu, sd = comp.mu[:, live], comp.sd[:, live]  # (K, M, d)
+    coef = comp.w[:, live] / np.prod(sd, axis=-1) * (2 * math.pi) ** (-0.5 * d)  # (K, M)
+    expo = 0.0
+    for j, marg in enumerate(prior.location):
+        diff = loc[:, None, None, :, j] - mu[None, :, :, None, j]  # (n, K, M, K)
+        if marg.periodic:
+            per = marg.upper - marg.lower
+            diff -= per * np.round(diff / per)
+        diff /= sd[None, :, :, None, j]
+        expo = expo + diff * diff
+    dens = np.exp(-0.5 * expo)
+    dens *= coef[None, :, :, None]
+    return q + dens.sum(axis=2)
+
+
+def _log_q(comps: list[_Component], prior, loc: np.ndarray) -> np.ndarray:
+    """log of the permutation-symmetrised mixture density at draws (n, K, d).
+
+    The sum over the K! labellings is taken in the linear domain: every entry of a
+    component's (K, K) matrix holds a prior term (>= its weight times the prior
+    density), so no product underflows inside the prior's support.
+    """
+    k = prior.n_sources
+    perms = np.array(list(itertools.permutations(range(k))))  # (K!, K)
+    rows = np.arange(k)
+    prior_q = np.exp(_log_prior_loc(prior, loc))
+    total = np.zeros(loc.shape[0])
+    for comp in comps:
+        a = _q_matrix(comp, prior, loc, prior_q)
+        total += comp.weight / len(perms) * np.prod(a[:, rows[None, :], perms], axis=-1).sum(-1)
+    with np.errstate(divide="ignore"):
+        return np.log(total)
+
+
+def _log_interval(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """log(Phi(b) - Phi(a)) for a <= b, on the tail that keeps precision; -inf if a >= b."""
+    flip = a > 0
+    lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
+    la, lb = log_ndtr(lo), log_ndtr(hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = lb + np.log1p(-np.exp(np.minimum(la - lb, 0.0)))
+    return np.where(hi > lo, out, -np.inf)
+
+
+def _box_line(base: np.ndarray, v: np.ndarray, sd: np.ndarray, lo: float, hi: float
+              ) -> np.ndarray:
+    """log P(base + t v in [lo, hi]^K) for t ~ N(0, sd^2); shapes (n, K), (n, K), (n,)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (lo - base) / v, (hi - base) / v
+    pos, neg = v > 0, v < 0
+    t_lo = np.where(pos, a, np.where(neg, b, np.where((base >= lo) & (base <= hi), -np.inf,
+                                                         np.inf)))
+    t_hi = np.where(pos, b, np.where(neg, a, np.inf))
+    return _log_interval(t_lo.max(axis=1) / sd, t_hi.min(axis=1) / sd)
+
+
+def _wide_direction(cov: np.ndarray, n_iter: int = 4) -> np.ndarray:
+    """Unit vectors (n, K) near the widest direction of each covariance (n, K, K): power
+    iteration from the coordinate of largest variance (fixed given cov)."""
+    j = np.argmax(np.diagonal(cov, axis1=1, axis2=2), axis=1)
+    u = np.take_along_axis(cov, j[:, None, None], axis=2)[..., 0]
+    for _ in range(n_iter):
+        u = u / np.linalg.norm(u, axis=1, keepdims=True)
+        u = np.einsum("nij,nj->ni", cov, u)
+    return u / np.linalg.norm(u, axis=1, keepdims=True)
+
+
+def _log_weights(model, data: np.ndarray, prior, loc: np.ndarray, gen: np.random.Generator
+                 ) -> np.ndarray:
+    """log of  max_I L (2 pi)^(K/2) det(C)^(1/2) E_{N(I^, C)}[pi(loc, I)]  per draw, (n,).
+
+    The intensities given the locations are N(I^, C).  For a general intensity prior
+    one draw of them estimates E[pi].  For a flat one (uniform box) a direction u
+    near C's widest is integrated exactly: with s = u.x and c = C u / (u' C u), the
+    draw x = y + s c splits into y independent of s ~ N(0, u' C u), and E[pi] is
+    estimated by the normal probability that the line I^ + y + s c lies in the box
+    (near-coincident sources have one very wide direction that the box cuts).
+    """
+    n, k, d = loc.shape
+    s2 = model.sigma**2
+    unit = np.concatenate([loc, np.ones((n, k, 1))], axis=-1).reshape(n * k, d + 1)
+    g = model.response(unit).reshape(n, k, -1)  # (n, K, N): columns of G
+    gram = g @ g.swapaxes(1, 2)
+    sign, logdet = np.linalg.slogdet(gram)
+    diag = np.log(np.diagonal(gram, axis1=1, axis2=2)).sum(axis=1)
+    # coinciding locations (a null set) make G^T G singular: weight 0
+    ok = (sign > 0) & (logdet > diag - 25.0)
+    gram = np.where(ok[:, None, None], gram, np.eye(k))
+    cov = np.linalg.inv(gram) * s2
+    cov = 0.5 * (cov + cov.swapaxes(1, 2))
+    rhs = g @ data / s2
+    i_hat = np.einsum("nij,nj->ni", cov, rhs)
+    chi2 = data @ data / s2 - np.sum(i_hat * rhs, axis=1)
+    x = np.einsum("nij,nj->ni", np.linalg.cholesky(cov), gen.standard_normal((n, k)))
+    inten = prior.intensity
+    if inten.flat:
+        u = _wide_direction(cov)
+        cu = np.einsum("nij,nj->ni", cov, u)
+        var_s = np.sum(u * cu, axis=1)
+        c = cu / var_s[:, None]
+        y = x - np.sum(u * x, axis=1)[:, None] * c
+        mid = np.full((n, k, 1), 0.5 * (inten.lower + inten.upper))
+        flat_x = np.concatenate([loc, mid], axis=-1).reshape(n, k * (d + 1))
+        log_pi = prior.log_prob(flat_x) + _box_line(i_hat + y, c, np.sqrt(var_s),
+                                                     inten.lower, inten.upper)
+    else:
+        full = np.concatenate([loc, (i_hat + x)[..., None]], axis=-1).reshape(n, k * (d + 1))
+        log_pi = prior.log_prob(full)
+    log_det_c = k * math.log(s2) - np.where(ok, logdet, 0.0)
+    const = -0.5 * model.n_sensors * math.log(2 * math.pi * s2) + 0.5 * k * LOG_2PI
+    out = const - 0.5 * chi2 + 0.5 * log_det_c + log_pi
+    return np.where(ok & np.isfinite(out), out, -np.inf)
+
+
+def mixture_log_evidence(
+    model,
+    data: np.ndarray,
+    prior,
+    fit_k: np.ndarray,
+    lower: list[np.ndarray] | tuple[np.ndarray, ...] = (),
+    n_draws: int = 2000,
+    rng: np.random.Generator | int | None = None,
+    *,
+    target_error: float = 0.1,
+    max_draws: int = 16_000,
+) -> MixtureEvidence:
+    """log Z_K by importance sampling over the K locations (intensities integrated).
+
+    Draws ``n_draws`` locations, then doubles the sample (reusing every weight:
+    same proposal) until the standard error of log Z is below ``target_error``
+    or ``max_draws`` is reached.
+
+    Parameters
+    ----------
+    model : Model
+        Known noise sd ``model.sigma``.
+    data : ndarray, shape (N,)
+    prior : ScenePrior
+        Prior of K sources (sigma known), 1 <= K <= ``MAX_SOURCES``.
+    fit_k : ndarray, shape (K (d+1),)
+        ML point of K sources (any labelling).
+    lower : sequence of ndarray
+        ML points of fewer sources (K - 1, then K - 2); each adds the component
+        "that fit plus the missing sources near one of its sources or anywhere".
+    n_draws : int
+        Initial number of location draws (>= 100).
+    rng : Generator or seed
+    target_error : float
+        Stop adding draws once the standard error is below this (nats).
+    max_draws : int
+        Cap on the total number of draws.
+
+    Returns
+    -------
+    MixtureEvidence
+    """
+    t0 = time.perf_counter()
+    k = prior.n_sources
+    if not 1 <= k <= MAX_SOURCES:
+        raise InputError(f"mixture_log_evidence needs 1 <= K <= {MAX_SOURCES}; got K = {k}")
+    if prior.noise is not None:
+        raise InputError("mixture_log_evidence needs sigma known: ScenePrior(noise=None)")
+    n_draws = integer("n_draws", n_draws, low=100)
+    max_draws = integer("max_draws", max_draws, low=n_draws)
+    target_error = positive_float("target_error", target_error)
+    gen = as_rng(rng)
+    data = np.asarray(data, float)
+    comps = _components(model, fit_k, list(lower), prior)
+    parts: list[np.ndarray] = []
+    n, batch = 0, n_draws
+    while True:
+        counts = gen.multinomial(batch, [c.weight for c in comps])
+        loc = np.concatenate([_draw(c, prior, int(m), gen) for c, m in zip(comps, counts)])
+        log_w = _log_weights(model, data, prior, loc, gen) - _log_q(comps, prior, loc)
+        parts.append(np.where(np.isfinite(log_w), log_w, -np.inf))
+        n += batch
+        log_z, se, ess = _summary(np.concatenate(parts))
+        if se <= target_error or n >= max_draws or not np.isfinite(log_z):
+            break
+        batch = min(n, max_draws - n)
+    return MixtureEvidence(log_z, se, ess, n, time.perf_counter() - t0)
+
+
+def _summary(log_w: np.ndarray) -> tuple[float, float, float]:
+    """(log mean w, delta-method se of it, Kish ESS) of log weights."""
+    if not np.isfinite(log_w).any():
+        return -math.inf, math.inf, 0.0
+    n = log_w.size
+    top = float(np.max(log_w))
+    log_mean = top + math.log(float(np.sum(np.exp(log_w - top))) / n)
+    w = np.exp(log_w - log_mean)
+    return log_mean, float(np.std(w) / math.sqrt(n)), float(w.sum() ** 2 / np.sum(w * w))
