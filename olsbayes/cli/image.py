@@ -4,7 +4,7 @@ Readings come from --data FILE, else from the config's [data] section (a file
 or a simulation of [scene]).  The known directions come from [image] directions,
 else from [scene] directions (imaging at the scene's own source directions).
 Options come from the command line, else from an optional [image] section
-(directions, prior, i_max, level, n_samples, n_chains, sampler, neighbours).
+(directions, prior, i_max, level, n_samples, n_chains, sampler, neighbours, window).
 
 Prints the design's rank and null space size and, per direction, the posterior
 mean, sd, credible interval and how much of it the array cannot see
@@ -56,6 +56,8 @@ register_section(Section(
         "n_chains": Field("int", default=4, low=1, high=256, doc="sampler chains"),
         "sampler": Field("str", default="gibbs", choices=SAMPLERS, doc="box-prior sampler"),
         "neighbours": Field("int", default=4, low=0, high=64, doc="pair moves per source"),
+        "window": Field("int", default=15, low=0, high=64,
+                        doc="box-prior Gibbs: window moves over each source + this many nearest"),
         "prior_bright": Field("float", default=0.5, low=1e-9, high=1 - 1e-9,
                               doc="two-level prior: probability that a source is bright"),
         "restarts": Field("int", default=0, low=0, high=10_000,
@@ -112,6 +114,7 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, np.ndarray, np.ndarray, np.n
         "n_chains": sec.get("n_chains", 4),
         "sampler": sec.get("sampler", "gibbs"),
         "neighbours": sec.get("neighbours", 4),
+        "window": sec.get("window", 15),
         "prior_bright": sec.get("prior_bright", 0.5),
         "restarts": sec.get("restarts", 0),
     }
