@@ -49,8 +49,10 @@ MAX_SOURCES = 5
 #: sources, prior.  Weights of missing lower fits go to the K-fit.
 WEIGHTS = (0.6, 0.2, 0.15, 0.05)
 #: Each constrained source of a fit is proposed from a normal with its (inflated)
-#: Fisher sd, a normal one sensor spacing wide, or its prior, with these weights.
-SOURCE_MIX = (0.6, 0.25, 0.15)
+#: Fisher sd, a normal half a sensor spacing wide, a radial density around it (only
+#: where sources are missing from the fit; else its weight goes to the first), or
+#: its prior, with these weights.
+SOURCE_MIX = (0.45, 0.2, 0.2, 0.15)
 #: An extra (free) source is proposed one sensor spacing wide around one of the
 #: fitted sources (a split source), or with this probability from its prior.
 EXTRA_PRIOR = 0.5
@@ -58,6 +60,8 @@ EXTRA_PRIOR = 0.5
 INFLATE = 1.5
 #: Largest sd (rad) of a proposal normal on a periodic coordinate (nearest image exact).
 MAX_PERIODIC_SD = 0.5
+#: Radial proposals cover distances RADIAL_RANGE * r_hi .. r_hi (r_hi: the wide sd).
+RADIAL_RANGE = 1e-4
 #: sd of the wide proposal normals, in sensor spacings (a split source's pair spreads
 #: about this far around the fitted location).
 WIDE = 0.5
@@ -121,39 +125,58 @@ def location_scales(model, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True, eq=False)
 class _Component:
-    """One product component: source a is drawn from normal m (centre ``mu[a, m]``,
-    sd ``sd[a, m]``) with probability ``w[a, m]``, or from its prior with ``w[a, -1]``."""
+    """One product component.  Source a is drawn from normal m (centre ``mu[a, m]``,
+    sd ``sd[a, m]``) with probability ``w[a, m]``, from radial r (around ``rmu[a, r]``,
+    density proportional to distance^-d between ``r_lo`` and ``r_hi``) with
+    ``w[a, M + r]``, or from its prior with ``w[a, -1]``."""
 
     weight: float
     mu: np.ndarray  # (K, M, d)
     sd: np.ndarray  # (K, M, d)
-    w: np.ndarray  # (K, M + 1)
+    rmu: np.ndarray  # (K, R, d)
+    w: np.ndarray  # (K, M + R + 1)
+    r_lo: float = 1.0
+    r_hi: float = 1.0
 
 
 def _fit_component(model, prior, weight: float, params: np.ndarray, n_extra: int
                    ) -> _Component:
-    """The sources of ``params`` (narrow, one spacing wide, or prior) plus ``n_extra``
-    free sources (near one of the fitted sources, one spacing wide, or prior)."""
+    """The sources of ``params`` plus ``n_extra`` sources missing from that fit.
+
+    A fitted source: narrow (its Fisher sd) or one-spacing-wide normal, or its prior;
+    with missing sources (``n_extra`` > 0) also a radial proposal around it.  A
+    missing source: wide normal or radial around one of the fitted sources (a split
+    source), or its prior.  The radial density ~ distance^-d matches the ~1/distance
+    evidence density of a source split into two close ones (whose intensities are
+    then nearly unidentifiable: a wide Gaussian cut by the box), which a normal
+    proposal would leave with an infinite-variance weight at high SNR.
+    """
     k, d = prior.n_sources, model.n_loc
     n_fit = k - n_extra
     h = sensor_spacing(model)
     per = np.array([m.periodic for m in prior.location])
     cap = np.where(per, min(WIDE * h, MAX_PERIODIC_SD), WIDE * h)
     big = max(2, n_fit)
+    n_rad = max(1, n_fit)
     mu, sd = np.zeros((k, big, d)), np.ones((k, big, d))
-    w = np.zeros((k, big + 1))
+    rmu = np.zeros((k, n_rad, d))
+    w = np.zeros((k, big + n_rad + 1))
     w[:, -1] = 1.0
     if n_fit:
         scale, free = location_scales(model, params)
         centre = np.asarray(params, float).reshape(n_fit, d + 1)[:, :-1]
         narrow = np.minimum(INFLATE * np.maximum(np.nan_to_num(scale, nan=h), 1e-6 * h), cap)
+        mix = SOURCE_MIX if n_extra else (SOURCE_MIX[0] + SOURCE_MIX[2], SOURCE_MIX[1], 0.0,
+                                          SOURCE_MIX[3])
         for a in np.flatnonzero(~free):
-            mu[a, :2], sd[a, 0], sd[a, 1] = centre[a], narrow[a], cap
-            w[a, :2], w[a, -1] = SOURCE_MIX[:2], SOURCE_MIX[2]
-        for a in range(n_fit, k):  # an extra source near any fitted one, or anywhere
-            mu[a, :n_fit], sd[a, :n_fit] = centre, cap
-            w[a, :n_fit], w[a, -1] = (1.0 - EXTRA_PRIOR) / n_fit, EXTRA_PRIOR
-    return _Component(weight, mu, sd, w)
+            mu[a, :2], sd[a, 0], sd[a, 1], rmu[a, 0] = centre[a], narrow[a], cap, centre[a]
+            w[a, 0], w[a, 1], w[a, big], w[a, -1] = mix
+        for a in range(n_fit, k):  # a missing source near any fitted one, or anywhere
+            mu[a, :n_fit], sd[a, :n_fit], rmu[a, :n_fit] = centre, cap, centre
+            w[a, :n_fit] = w[a, big:big + n_fit] = 0.5 * (1.0 - EXTRA_PRIOR) / n_fit
+            w[a, -1] = EXTRA_PRIOR
+    r_hi = float(np.min(cap))
+    return _Component(weight, mu, sd, rmu, w, RADIAL_RANGE * r_hi, r_hi)
 
 
 def _components(model, fit_k: np.ndarray, lower: list[np.ndarray], prior
@@ -172,16 +195,23 @@ def _components(model, fit_k: np.ndarray, lower: list[np.ndarray], prior
 def _draw(comp: _Component, prior, n: int, gen: np.random.Generator) -> np.ndarray:
     """n location draws (n, K, d) of one component (each source picks its sub-proposal)."""
     k, big, d = comp.mu.shape
+    n_rad = comp.rmu.shape[1]
     cum = np.cumsum(comp.w, axis=1)
-    pick = np.minimum((gen.random((n, k, 1)) > cum[None, :, :-1]).sum(axis=-1), big)
+    pick = np.minimum((gen.random((n, k, 1)) > cum[None, :, :-1]).sum(axis=-1), big + n_rad)
     rows = np.arange(k)[None, :]
-    mu = comp.mu[rows, np.minimum(pick, big - 1)]  # (n, K, d)
-    sd = comp.sd[rows, np.minimum(pick, big - 1)]
-    out = mu + sd * gen.standard_normal((n, k, d))
+    normal = np.minimum(pick, big - 1)
+    out = comp.mu[rows, normal] + comp.sd[rows, normal] * gen.standard_normal((n, k, d))
+    radial = (pick >= big) & (pick < big + n_rad)
+    if radial.any():
+        r = comp.r_lo * (comp.r_hi / comp.r_lo) ** gen.random((n, k, 1))
+        u = gen.standard_normal((n, k, d))
+        u /= np.linalg.norm(u, axis=-1, keepdims=True)
+        around = comp.rmu[rows, np.clip(pick - big, 0, n_rad - 1)] + r * u
+        out = np.where(radial[..., None], around, out)
     for j, marg in enumerate(prior.location):
         if marg.periodic:
             out[..., j] = marg.lower + np.mod(out[..., j] - marg.lower, marg.upper - marg.lower)
-        out[..., j] = np.where(pick == big, marg.ppf(gen.random((n, k))), out[..., j])
+        out[..., j] = np.where(pick == big + n_rad, marg.ppf(gen.random((n, k))), out[..., j])
     return out
 
 
@@ -196,30 +226,41 @@ def _log_prior_loc(prior, loc: np.ndarray) -> np.ndarray:
     return total
 
 
+def _wrapped_diff(prior, loc: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """loc (n, K, d) minus centres (K, C, d), nearest periodic image: (n, K, C, K, d)."""
+    diff = loc[:, None, None, :, :] - centre[None, :, :, None, :]
+    for j, marg in enumerate(prior.location):
+        if marg.periodic:
+            per = marg.upper - marg.lower
+            diff[..., j] -= per * np.round(diff[..., j] / per)
+    return diff
+
+
 def _q_matrix(comp: _Component, prior, loc: np.ndarray, prior_q: np.ndarray) -> np.ndarray:
     """Density (n, K, K) of component source a (axis 1) at draw source b (axis 2).
 
-    A periodic coordinate's normal is wrapped with the nearest image only: its sd
-    is at most ``MAX_PERIODIC_SD`` = 0.5 rad, so the other images weigh < 3e-9.
+    A periodic coordinate's density is wrapped with the nearest image only: widths
+    are at most ``MAX_PERIODIC_SD`` = 0.5 rad, so the other images weigh < 3e-9.
     """
     k, big, d = comp.mu.shape
-    live = np.flatnonzero(comp.w[:, :-1].any(axis=0))  # sub-normals in use
     q = comp.w[None, :, -1, None] * prior_q[:, None, :]
-    if live.size == 0:
-        return q
-    mu, sd = comp.mu[:, live], comp.sd[:, live]  # (K, M, d)
-    coef = comp.w[:, live] / np.prod(sd, axis=-1) * (2 * math.pi) ** (-0.5 * d)  # (K, M)
-    expo = 0.0
-    for j, marg in enumerate(prior.location):
-        diff = loc[:, None, None, :, j] - mu[None, :, :, None, j]  # (n, K, M, K)
-        if marg.periodic:
-            per = marg.upper - marg.lower
-            diff -= per * np.round(diff / per)
-        diff /= sd[None, :, :, None, j]
-        expo = expo + diff * diff
-    dens = np.exp(-0.5 * expo)
-    dens *= coef[None, :, :, None]
-    return q + dens.sum(axis=2)
+    live = np.flatnonzero(comp.w[:, :big].any(axis=0))  # sub-normals in use
+    if live.size:
+        sd = comp.sd[:, live]
+        coef = comp.w[:, live] / np.prod(sd, axis=-1) * (2 * math.pi) ** (-0.5 * d)
+        z = _wrapped_diff(prior, loc, comp.mu[:, live]) / sd[None, :, :, None, :]
+        dens = np.exp(-0.5 * np.sum(z * z, axis=-1))  # (n, K, M, K)
+        q = q + np.einsum("am,namb->nab", coef, dens)
+    rad = np.flatnonzero(comp.w[:, big:-1].any(axis=0))
+    if rad.size:
+        r = np.linalg.norm(_wrapped_diff(prior, loc, comp.rmu[:, rad]), axis=-1)
+        surface = 2 * math.pi ** (0.5 * d) / math.gamma(0.5 * d)
+        norm = math.log(comp.r_hi / comp.r_lo) * surface
+        inside = (r >= comp.r_lo) & (r <= comp.r_hi)
+        with np.errstate(divide="ignore"):
+            dens = np.where(inside, 1.0 / (norm * r**d), 0.0)
+        q = q + np.einsum("am,namb->nab", comp.w[:, big + rad], dens)
+    return q
 
 
 def _log_q(comps: list[_Component], prior, loc: np.ndarray) -> np.ndarray:
@@ -299,7 +340,10 @@ def _log_weights(model, data: np.ndarray, prior, loc: np.ndarray, gen: np.random
     cov = 0.5 * (cov + cov.swapaxes(1, 2))
     rhs = g @ data / s2
     i_hat = np.einsum("nij,nj->ni", cov, rhs)
-    chi2 = data @ data / s2 - np.sum(i_hat * rhs, axis=1)
+    # the residual itself, not |y|^2 - I^.G^T y: that difference loses all precision
+    # for nearly coincident sources at high SNR (ill-conditioned G^T G)
+    resid = data - np.einsum("nk,nks->ns", i_hat, g)
+    chi2 = np.einsum("ns,ns->n", resid, resid) / s2
     x = np.einsum("nij,nj->ni", np.linalg.cholesky(cov), gen.standard_normal((n, k)))
     inten = prior.intensity
     if inten.flat:

@@ -197,7 +197,7 @@ def select_k(
     dlogz: float = 0.5,
     thresholds: Mapping[str, float] | None = None,
     fit_kwargs: Mapping[str, object] | None = None,
-    importance_draws: int = 1000,
+    importance_draws: int = 500,
 ) -> SelectionResult:
     """Evidence for K = 0..k_max sources and the posterior over K.
 
@@ -253,7 +253,7 @@ def select_k(
         (:func:`~olsbayes.select.mixture.mixture_log_evidence`) that replaces every
         untrusted or undefined Laplace value for K <= 5 (methods ``laplace`` and
         ``auto``): intensities at their bound 0, (nearly) free locations, singular
-        Fisher matrices.  Doubled up to 4x until its error is below 0.15 nats.  0
+        Fisher matrices.  Doubled up to 4x until its error is below 0.2 nats.  0
         restores the bare Laplace rule (an undefined Laplace value gets the rough
         prior-ridge fallback if its ML fit gains >= ``RIDGE_GAIN`` = 10 nats over
         every smaller K, else p = 0).
