@@ -254,3 +254,12 @@ def test_spd_solve_falls_back_to_lu():
         out = np.empty_like(b)
         _kernel._solve_spd(m.copy(), b, out)
         np.testing.assert_allclose(out, np.linalg.solve(m, b), rtol=1e-13, atol=1e-14)
+
+
+def test_refine_batch_shape_errors():
+    model = ob.Model(ob.Ring(30), 1e-2)
+    data, x0 = np.zeros((3, 30)), np.zeros((3, 4))
+    for bad_data, bad_x0 in ((data[0], x0), (data, x0[0]), (data[:2], x0), (data[:, :29], x0),
+                             (data, x0[:, :3])):
+        with pytest.raises(ob.InputError, match="data must have shape"):
+            refine_batch(model, bad_data, bad_x0)

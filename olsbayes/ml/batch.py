@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..model import Model
 
 __all__ = ["LMOutcome", "project", "refine_batch", "refine_batch_numpy"]
@@ -131,6 +132,16 @@ def _propose(
     return tuple(np.concatenate(z) for z in zip(*parts))  # type: ignore[return-value]
 
 
+def _check_shapes(model: Model, data: np.ndarray, x0: np.ndarray) -> None:
+    """data (T, N) and x0 (T, P) with P a multiple of d + 1, else InputError."""
+    ds, xs, d1 = np.shape(data), np.shape(x0), model.n_loc + 1
+    if len(ds) != 2 or len(xs) != 2 or ds[0] != xs[0] or ds[1] != model.n_sensors or xs[1] % d1:
+        raise InputError(
+            f"data must have shape (T, {model.n_sensors}) and x0 shape (T, K * {d1}) with "
+            f"the same T; got data {ds} and x0 {xs}"
+        )
+
+
 def refine_batch(
     model: Model,
     data: np.ndarray,
@@ -148,6 +159,7 @@ def refine_batch(
     """
     from . import _kernel  # numba is imported on first use, not with the package
 
+    _check_shapes(model, data, x0)
     if not _kernel.supports(model):
         return refine_batch_numpy(model, data, x0, max_iter=max_iter, ftol=ftol, frozen=frozen)
     x, chi2, conv, nev, stalled = _kernel.lm_batch(
