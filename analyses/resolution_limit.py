@@ -3,12 +3,13 @@
 Two equal sources (I = 1) on a ring of N = 30 sub-sensors at a uniformly random
 rotation, separated by dtheta from a quarter of a sensor spacing h = 2 pi / N up
 to pi / 2, noise sigma in {1e-2, 1e-4}.  For every trial the number of sources is
-chosen by :func:`olsbayes.select_k` (Laplace evidence, K = 0, 1, 2, uniform
-intensity prior U(0, 2), ties broken towards the smaller K) and the K = 2 ML fit
-is kept.  Per separation:
+chosen by :func:`olsbayes.select_k` (method "laplace": Laplace evidence where it
+is trusted, importance sampling over the source locations where it is not --
+singular Fisher matrix, split or weak sources; K = 0, 1, 2, uniform intensity
+prior U(0, 2), ties broken towards the smaller K) and the K = 2 ML fit is kept.
+Per separation:
 
-* P(K = 2 selected) and the median Bayes factor log Z2 - log Z1 (nats; an
-  undefined Laplace value -- singular Fisher matrix -- counts as -inf);
+* P(K = 2 selected) and the median Bayes factor log Z2 - log Z1 (nats);
 * the RMS angle error of the K = 2 ML fit over all trials, and over the
   resolvable placements (non-singular Fisher matrix at the true scene) next to
   the exact CRLB at the true scene (RMS over the same placements) and Eq. 4
