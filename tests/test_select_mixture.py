@@ -64,7 +64,7 @@ def _scene(sources, seed):
 
 
 def _mixture(data, k, res, seed):
-    lower = [res[j].params for j in (k - 1, k - 2) if j >= 1]
+    lower = [res[j].params for j in (k - 1, k - 2, k - 3) if j >= 1]
     return mixture_log_evidence(MODEL, data, default_priors(MODEL, k, i_max=I_MAX),
                                 res[k].params, lower, n_draws=2000, rng=seed)
 

@@ -74,7 +74,7 @@ def mixture_work(model: Model, data: np.ndarray, work: KWork, prior,
     and its reasons are kept, and the sampler's own doubts (large error, few effective
     draws, no draw of positive weight) are added to the reasons."""
     out = mixture_log_evidence(model, data, prior, work.params, lower, n_draws=n_draws,
-                               rng=rng, max_draws=4 * n_draws, target_error=0.2)
+                               rng=rng, max_draws=2 * n_draws, target_error=0.2)
     why = ()
     if not np.isfinite(out.log_evidence):
         why = ("importance sampling found no draw of positive weight",)

@@ -45,9 +45,9 @@ __all__ = ["MixtureEvidence", "mixture_log_evidence", "location_scales", "MAX_SO
 
 #: Largest K handled (the symmetrised density sums over K! permutations).
 MAX_SOURCES = 5
-#: Mixture weights: K-fit, (K-1)-fit + one extra source, (K-2)-fit + two extra
-#: sources, prior.  Weights of missing lower fits go to the K-fit.
-WEIGHTS = (0.6, 0.2, 0.15, 0.05)
+#: Mixture weights: K-fit, (K-1)-fit + one extra source, (K-2)-fit + two, (K-3)-fit +
+#: three, prior.  Weights of missing lower fits go to the K-fit.
+WEIGHTS = (0.5, 0.2, 0.15, 0.1, 0.05)
 #: Each constrained source of a fit is proposed from a normal with its (inflated)
 #: Fisher sd, a normal half a sensor spacing wide, a radial density around it (only
 #: where sources are missing from the fit; else its weight goes to the first), or
@@ -393,7 +393,7 @@ def mixture_log_evidence(
     fit_k : ndarray, shape (K (d+1),)
         ML point of K sources (any labelling).
     lower : sequence of ndarray
-        ML points of fewer sources (K - 1, then K - 2); each adds the component
+        ML points of fewer sources (K - 1, K - 2, K - 3); each adds the component
         "that fit plus the missing sources near one of its sources or anywhere".
     n_draws : int
         Initial number of location draws (>= 100).

@@ -253,7 +253,7 @@ def select_k(
         (:func:`~olsbayes.select.mixture.mixture_log_evidence`) that replaces every
         untrusted or undefined Laplace value for K <= 5 (methods ``laplace`` and
         ``auto``): intensities at their bound 0, (nearly) free locations, singular
-        Fisher matrices.  Doubled up to 4x until its error is below 0.2 nats.  0
+        Fisher matrices.  Doubled once if its error exceeds 0.2 nats.  0
         restores the bare Laplace rule (an undefined Laplace value gets the rough
         prior-ridge fallback if its ML fit gains >= ``RIDGE_GAIN`` = 10 nats over
         every smaller K, else p = 0).
@@ -298,7 +298,7 @@ def select_k(
         w = laplace_work(model, k, fitted[k], prior_of(k), thresholds, t_fit)
         if (method != "nested" and importance_draws and k <= MAX_SOURCES
                 and (w.reasons or not np.isfinite(w.value))):
-            lower = [fitted[j][1] for j in (k - 1, k - 2) if j >= 1]
+            lower = [fitted[j][1] for j in (k - 1, k - 2, k - 3) if j >= 1]
             w = mixture_work(model, data, w, prior_of(k), lower, pairs[k][2], importance_draws)
         gain = w.log_likelihood - max(v.log_likelihood for v in works)
         if not np.isfinite(w.value) and gain >= RIDGE_GAIN:
