@@ -15,7 +15,7 @@ import pytest
 
 import olsbayes as ob
 from olsbayes.crlb import kink_sources
-from olsbayes.ml import _kernel
+from olsbayes.ml import _fit_kernel, _kernel
 from olsbayes.ml.batch import refine_batch, refine_batch_numpy
 from olsbayes.sensitivity import CustomSensitivity
 
@@ -237,7 +237,7 @@ def test_chi2_fisher_matches_model(geometry):
     truth = model.pack(scene)
     data = model.simulate(scene, 23, size=6)
     x = _starts(model, truth, 24, 6, 0.01)
-    chi2, fisher = _kernel.chi2_fisher(model, x, data)
+    chi2, fisher = _fit_kernel.chi2_fisher(model, x, data)
     ll = model.log_likelihood(x, data)
     const = -model.n_sensors * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
     np.testing.assert_allclose(-0.5 * chi2 / model.sigma**2 + const, ll, rtol=1e-12)
@@ -263,3 +263,48 @@ def test_refine_batch_shape_errors():
                              (data, x0[:, :3])):
         with pytest.raises(ob.InputError, match="data must have shape"):
             refine_batch(model, bad_data, bad_x0)
+
+
+def test_compiled_hop_starts_identical():
+    from olsbayes.ml.fast import hop_starts
+
+    ring = ob.Ring(30)
+    model = ob.Model(ring, 1e-2)
+    rng = np.random.default_rng(25)
+    x = np.stack([rng.uniform(-4, 4, (50, 3)), rng.uniform(0, 1, (50, 3))], axis=-1).reshape(50, 6)
+    x[0, 0] = ring.angles[2] + np.pi / 2  # exactly on a crossing
+    np.testing.assert_array_equal(_fit_kernel.hop_starts(model, x), hop_starts(model, x))
+
+
+@pytest.mark.parametrize("geometry", ["ring", "sphere", "plate"])
+def test_compiled_kink_test_matches_crlb(geometry):
+    ring = ob.Ring(30)
+    if geometry == "ring":
+        model = ob.Model(ring, 1e-2)
+        x = np.array([[ring.angles[4] + np.pi / 2, 1.0, 2.0, 0.5], [0.3, 1.0, 2.0, 0.5]])
+    elif geometry == "sphere":
+        model = ob.Model(ob.Sphere.fibonacci(40), 1e-2)
+        x = np.array([[0.4, 0.2, 1.0], [2.5, -0.5, 0.6]])
+    else:
+        model = ob.Model(ob.Plate.grid(4, 4, pitch=1.0), 1e-3)
+        x = np.array([[0.0, 0.0, 0.0, 1.0], [1.0, 1.0, 2.0, 1.0]])  # z = 0: on the kink
+    for atol in (1e-6, 0.05):
+        np.testing.assert_array_equal(_fit_kernel.on_kink(model, x, atol),
+                                      kink_sources(model, x, atol=atol))
+
+
+def test_compiled_covariances_match_numpy():
+    from olsbayes.crlb import SINGULAR_RTOL
+    from olsbayes.ml.api import _covariances
+
+    model = ob.Model(ob.Ring(30), 1e-2)
+    x = np.array([[0.4, 1.0, 2.5, 0.6],  # regular
+                  [0.4, 1.0, 0.4, 0.6],  # coincident sources: singular Fisher
+                  [0.4, 1.0, 2.5, 0.0]])  # zero intensity: its angle unidentified
+    fisher = model.fisher(x)
+    a = _fit_kernel.covariances(fisher, SINGULAR_RTOL)
+    b = _covariances(model, x, fisher)
+    np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
+    assert np.isinf(a[1:]).any() and not np.isinf(a[0]).any()
+    fin = np.isfinite(b)
+    np.testing.assert_allclose(a[fin], b[fin], rtol=1e-9, atol=1e-12 * np.abs(b[fin]).max())

@@ -31,7 +31,7 @@ import numpy as np
 from ..model import Model
 from ..sensitivity import Cosine, CosinePower
 
-__all__ = ["KINDS", "chi2_fisher", "law_code", "lm_batch", "supports"]
+__all__ = ["KINDS", "law_code", "lm_batch", "supports"]
 
 #: Source kinds covered, in the order of their integer codes.
 KINDS = ("angle", "lonlat", "position")
@@ -402,16 +402,6 @@ def lm_batch(
     return x, chi2, conv, 2 * n_iter, stalled
 
 
-@numba.njit(cache=True)
-def _stats_all(kind, law, p, nrm, pos, x, data, chi2, fisher):  # pragma: no cover
-    """chi^2 of every row of x (T, P) against data (T, N) and J^T J (T, P, P)."""
-    t, np_ = x.shape
-    jt, r, g = np.empty((np_, data.shape[1])), np.empty(data.shape[1]), np.empty(np_)
-    for i in range(t):
-        chi2[i] = _residual(kind, law, p, nrm, pos, x[i], data[i], jt, r, True)
-        _normal_eq(jt, r, fisher[i], g)
-
-
 _ARRAYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -429,18 +419,3 @@ def _arrays(model: Model) -> tuple[int, int, float, np.ndarray, np.ndarray]:
         pos = np.zeros((3, 1)) if pos is None else np.array(pos.T, dtype=np.float64, order="C")
         hit = _ARRAYS[model] = (KINDS.index(model.kind), code, p, nrm, pos)
     return hit
-
-
-def chi2_fisher(model: Model, x: np.ndarray, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sum of squared residuals (T,) and Fisher information J^T J / sigma^2 (T, P, P).
-
-    For a supported model, x (T, P) and data (T, N); the compiled counterpart of
-    ``model.log_likelihood`` and ``model.fisher`` (rounding-level differences).
-    """
-    kind, code, p, nrm, pos = _arrays(model)
-    xx = np.require(x, np.float64, ["C", "W"])
-    s = np.require(data, np.float64, ["C", "W"])
-    chi2, fisher = np.empty(xx.shape[0]), np.empty((xx.shape[0],) + (xx.shape[1],) * 2)
-    _stats_all(kind, code, p, nrm, pos, xx, s, chi2, fisher)
-    fisher /= model.sigma**2
-    return chi2, fisher

@@ -146,14 +146,16 @@ def fit_ml(
 def _result(
     model: Model, s: np.ndarray, k: int, method: str, out: LMOutcome, batch: bool, warn: bool
 ) -> MLResult:
-    from . import _kernel  # numba is imported on first use, not with the package
+    from . import _fit_kernel, _kernel  # numba is imported on first use, not with the package
 
     x = model.canonical(out.x)
     if _kernel.supports(model):  # compiled: chi^2 and Fisher in one pass
-        chi2, fisher = _kernel.chi2_fisher(model, x, s)
+        chi2, fisher = _fit_kernel.chi2_fisher(model, x, s)
         n = model.n_sensors
         ll = -0.5 * chi2 / model.sigma**2 - n * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
-        cov = _covariances(model, x, fisher)
+        finite = np.isfinite(fisher).all()
+        cov = (_fit_kernel.covariances(fisher, SINGULAR_RTOL) if finite
+               else _covariances(model, x, fisher))
     else:
         ll = model.log_likelihood(x, s)
         cov = _covariances(model, x)

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..crlb import kink_sources
 from ..geometry import wrap_angle
 from ..model import Model
 from .batch import LMOutcome, refine_batch
@@ -69,11 +68,18 @@ def _take(out: LMOutcome, rows: np.ndarray) -> LMOutcome:
                      out.n_evaluations[rows], out.stalled[rows])
 
 
+def _kinked(model: Model, x: np.ndarray, atol: float = 1e-6) -> np.ndarray:
+    """:func:`~olsbayes.crlb.kink_sources` of fits x (T, P), compiled: bool (T, K)."""
+    from . import _fit_kernel  # numba is imported on first use
+
+    if not model.sensitivity.kink:
+        return np.zeros((x.shape[0], x.shape[1] // (model.n_loc + 1)), bool)
+    return _fit_kernel.on_kink(model, x, atol)
+
+
 def _on_kink(model: Model, x: np.ndarray, atol: float = 1e-6) -> np.ndarray:
     """Trials (T,) with a source within ~atol rad of a sub-sensor's 90 deg horizon."""
-    if not model.sensitivity.kink:
-        return np.zeros(x.shape[0], bool)
-    return np.any(kink_sources(model, x, atol=atol), axis=-1)
+    return np.any(_kinked(model, x, atol), axis=-1)
 
 
 def _kink_polish(model: Model, data: np.ndarray, out: LMOutcome, max_iter: int) -> LMOutcome:
@@ -85,7 +91,7 @@ def _kink_polish(model: Model, data: np.ndarray, out: LMOutcome, max_iter: int) 
     """
     if not model.sensitivity.kink:
         return out
-    kinked = kink_sources(model, out.x, atol=1e-6)  # (T, K)
+    kinked = _kinked(model, out.x, atol=1e-6)  # (T, K)
     rows = np.flatnonzero(kinked.any(axis=1))
     if rows.size == 0:
         return out
@@ -159,8 +165,10 @@ def _kink_hops(model: Model, data: np.ndarray, out: LMOutcome, max_iter: int) ->
     k = out.x.shape[1] // (model.n_loc + 1)
     if model.kind != "angle" or not model.sensitivity.kink or k < HOP_MIN_SOURCES:
         return out
+    from . import _fit_kernel  # numba is imported on first use
+
     t = out.x.shape[0]
-    starts = hop_starts(model, out.x).reshape(t, 2 * k, k, 2)
+    starts = _fit_kernel.hop_starts(model, out.x).reshape(t, 2 * k, k, 2)  # == hop_starts
     return _merge(out, np.arange(t), _refine_starts(model, data, starts, max_iter))
 
 
