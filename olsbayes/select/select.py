@@ -330,8 +330,9 @@ def _finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict
     prob /= prob.sum()
     best, notes = _choose(score, tie)
     for w in works:
-        if method == "auto" and w.method in ("laplace", "importance") and w.reasons and (
-                w.k > best and w.log_likelihood - works[best].log_likelihood < min_gain):
+        noise_only = method == "auto" and w.method in ("laplace", "importance") and bool(
+            w.reasons) and w.k > best and w.log_likelihood - works[best].log_likelihood < min_gain
+        if noise_only:
             low = ("; its p(K) rests on the untrusted Laplace value, which can be several "
                    "nats low for an over-complete K (a source split within one sensor spacing "
                    "predicts the same readings)") if np.isfinite(w.value) else ""
@@ -346,7 +347,8 @@ def _finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict
             notes.append(f"K={w.k}: no evidence estimate ({'; '.join(w.reasons)}); p(K) set to 0")
         elif w.method == "laplace" and w.reasons and score[w.k] >= score.max() - decisive:
             notes.append(f"K={w.k}: Laplace evidence not to be trusted ({'; '.join(w.reasons)})")
-        elif w.method == "importance" and score[w.k] >= score.max() - decisive:
+        elif w.method == "importance" and not noise_only and (
+                score[w.k] >= score.max() - decisive):
             notes.append(f"K={w.k}: Laplace evidence not to be trusted, importance sampling "
                          f"over the locations used instead ({w.value:.2f} +- {w.error:.2f} "
                          "nats)")
