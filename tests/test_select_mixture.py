@@ -167,3 +167,18 @@ def test_split_source_at_high_snr_is_stable():
                                  n_draws=4000, rng=s, max_draws=4000) for s in (1, 2))
     assert abs(a.log_evidence - b.log_evidence) < 3 * math.hypot(a.error, b.error)
     assert -8.0 < a.log_evidence - res.log_evidence[1] < 0.0
+
+
+def test_bad_importance_settings_are_refused():
+    from olsbayes.errors import InputError
+
+    data = _scene([(0.5, 1.0)], 3)
+    with pytest.raises(InputError, match="importance_draws must be 0 or >= 100; got 50"):
+        select_k(MODEL, data, k_max=1, method="laplace", rng=0, i_max=I_MAX,
+                 importance_draws=50)
+    prior = default_priors(MODEL, 1, i_max=I_MAX)
+    with pytest.raises(InputError, match="target_error"):
+        mixture_log_evidence(MODEL, data, prior, np.array([0.5, 1.0]), target_error=0.0)
+    with pytest.raises(InputError, match="1 <= K <= 5"):
+        mixture_log_evidence(MODEL, data, default_priors(MODEL, 6, i_max=I_MAX),
+                             np.zeros(12))
