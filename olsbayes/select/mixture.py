@@ -93,7 +93,8 @@ class MixtureEvidence:
     seconds: float
 
 
-def location_scales(model, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def location_scales(model, params: np.ndarray, spacing: float | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Per-source location sd (K, d) at an ML point and which sources are free (K,).
 
     From the inverse Fisher matrix; a source whose coordinates are unidentifiable
@@ -117,7 +118,7 @@ def location_scales(model, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(invalid="ignore", divide="ignore"):
         sd = np.sqrt(np.where(var > 0, var, np.nan))
     snr = x.reshape(k, w)[:, -1] / sd[:, -1]
-    loc_sd = np.minimum(sd[:, :-1], sensor_spacing(model))
+    loc_sd = np.minimum(sd[:, :-1], sensor_spacing(model) if spacing is None else spacing)
     free = ~(snr >= FREE_SNR) | ~np.all(np.isfinite(loc_sd), axis=1)
     return np.where(np.isfinite(loc_sd), loc_sd, np.nan), free
 
@@ -138,8 +139,8 @@ class _Component:
     r_hi: float = 1.0
 
 
-def _fit_component(model, prior, weight: float, params: np.ndarray, n_extra: int
-                   ) -> _Component:
+def _fit_component(model, prior, weight: float, params: np.ndarray, n_extra: int,
+                   h: float) -> _Component:
     """The sources of ``params`` plus ``n_extra`` sources missing from that fit.
 
     A fitted source: narrow (its Fisher sd) or one-spacing-wide normal, or its prior;
@@ -152,7 +153,6 @@ def _fit_component(model, prior, weight: float, params: np.ndarray, n_extra: int
     """
     k, d = prior.n_sources, model.n_loc
     n_fit = k - n_extra
-    h = sensor_spacing(model)
     per = np.array([m.periodic for m in prior.location])
     cap = np.where(per, min(WIDE * h, MAX_PERIODIC_SD), WIDE * h)
     big = max(2, n_fit)
@@ -162,7 +162,7 @@ def _fit_component(model, prior, weight: float, params: np.ndarray, n_extra: int
     w = np.zeros((k, big + n_rad + 1))
     w[:, -1] = 1.0
     if n_fit:
-        scale, free = location_scales(model, params)
+        scale, free = location_scales(model, params, h)
         centre = np.asarray(params, float).reshape(n_fit, d + 1)[:, :-1]
         narrow = np.minimum(INFLATE * np.maximum(np.nan_to_num(scale, nan=h), 1e-6 * h), cap)
         mix = SOURCE_MIX if n_extra else (SOURCE_MIX[0] + SOURCE_MIX[2], SOURCE_MIX[1], 0.0,
@@ -181,13 +181,13 @@ def _fit_component(model, prior, weight: float, params: np.ndarray, n_extra: int
 def _components(model, fit_k: np.ndarray, lower: list[np.ndarray], prior
                 ) -> list[_Component]:
     """K-fit, (K-j)-fits plus j extra sources, and the prior (see :data:`WEIGHTS`)."""
-    k = prior.n_sources
+    k, h = prior.n_sources, sensor_spacing(model)
     lower = [f for f in lower if 0 < model.n_sources_of(f) < k][: len(WEIGHTS) - 2]
     spare = sum(WEIGHTS[1:len(WEIGHTS) - 1][len(lower):])
-    out = [_fit_component(model, prior, WEIGHTS[0] + spare, fit_k, 0)]
+    out = [_fit_component(model, prior, WEIGHTS[0] + spare, fit_k, 0, h)]
     for w, f in zip(WEIGHTS[1:], lower):
-        out.append(_fit_component(model, prior, w, f, k - model.n_sources_of(f)))
-    out.append(_fit_component(model, prior, WEIGHTS[-1], np.zeros(0), k))
+        out.append(_fit_component(model, prior, w, f, k - model.n_sources_of(f), h))
+    out.append(_fit_component(model, prior, WEIGHTS[-1], np.zeros(0), k, h))
     return out
 
 
