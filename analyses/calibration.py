@@ -7,8 +7,8 @@ ranks of the true (canonically ordered) parameters among 99 thinned draws.
 Rank histograms per parameter, chi-square and KS uniformity tests, and the
 coverage of the central 50 % and 90 % intervals (from the ranks, so exactly 0.5
 and 0.9 for a calibrated posterior).  The posterior over K from
-:func:`olsbayes.select.select_k` (Laplace evidences, K uniform on 0..2) is
-calibrated with the randomised PIT.
+:func:`olsbayes.select.select_k` (Laplace evidences, importance sampling for the K
+where Laplace is untrusted; K uniform on 0..2) is calibrated with the randomised PIT.
 
 The same scenes (same study seed) are also given to the exact reference posterior
 of :mod:`olsbayes.studies.sbc_exact` (grid over the directions, intensities
