@@ -20,7 +20,7 @@ import numpy as np
 
 from ._kernel import _solve
 
-__all__ = ["search_trials", "tuple_trials", "intensities_trials"]
+__all__ = ["intensities_trials", "neighbours", "search_trials", "tuple_trials"]
 
 #: Normalised-atom correlation above which two atoms count as one basin (search.py).
 NEIGHBOUR = 0.95
@@ -133,19 +133,53 @@ def _pursue_and_alternate(g, gnorm2, gs, s, k, max_sweeps, q, cg, sc):  # pragma
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
-def _runners_up(unit, base, n_alt, sc, out, first):  # pragma: no cover - compiled
-    """Runner-up atoms of each source outside the taken basins (search._alternatives)."""
+def _unit_dot(unit, a, b):  # pragma: no cover - compiled
+    """Correlation of the normalised atoms a and b."""
+    acc = 0.0
+    for t in range(unit.shape[1]):
+        acc += unit[a, t] * unit[b, t]
+    return acc
+
+
+@numba.njit(cache=True)
+def neighbours(unit):  # pragma: no cover - compiled
+    """CSR lists (indptr, indices) of the atoms within each atom's basin (> NEIGHBOUR)."""
+    m = unit.shape[0]
+    indptr = np.zeros(m + 1, np.int64)
+    for a in range(m):
+        for b in range(m):
+            indptr[a + 1] += _unit_dot(unit, a, b) > NEIGHBOUR
+    for a in range(m):
+        indptr[a + 1] += indptr[a]
+    indices = np.empty(indptr[m], np.int64)
+    for a in range(m):
+        c = indptr[a]
+        for b in range(m):
+            if _unit_dot(unit, a, b) > NEIGHBOUR:
+                indices[c] = b
+                c += 1
+    return indptr, indices
+
+
+@numba.njit(cache=True)
+def _runners_up(unit, indptr, indices, base, n_alt, sc, out, first):  # pragma: no cover
+    """Runner-up atoms of each source outside the taken basins (search._alternatives).
+
+    The basin of an atom comes from the CSR lists of :func:`neighbours` when given
+    (indptr non-empty), else from its correlations with every atom.
+    """
     k, m = base.size, unit.shape[0]
     c = first
     for j in range(k):
         taken = base[j]
         for _ in range(n_alt):
-            for i in range(m):
-                acc = 0.0
-                for t in range(unit.shape[1]):
-                    acc += unit[taken, t] * unit[i, t]
-                if acc > NEIGHBOUR:
-                    sc[j, i] = -np.inf
+            if indptr.size:
+                for q in range(indptr[taken], indptr[taken + 1]):
+                    sc[j, indices[q]] = -np.inf
+            else:
+                for i in range(m):
+                    if _unit_dot(unit, taken, i) > NEIGHBOUR:
+                        sc[j, i] = -np.inf
             taken = _argmax(sc[j])
             out[c] = base
             if np.isfinite(sc[j, taken]):
@@ -154,7 +188,8 @@ def _runners_up(unit, base, n_alt, sc, out, first):  # pragma: no cover - compil
 
 
 @numba.njit(cache=True)
-def search_trials(g, gnorm2, unit, data, k, max_sweeps, n_alt, out):  # pragma: no cover
+def search_trials(g, gnorm2, unit, indptr, indices, data, k, max_sweeps, n_alt,
+                  out):  # pragma: no cover - compiled
     """Pursuit + alternation + runners-up for every trial: out (T, C, K), rows 0..K n_alt.
 
     The remaining rows of ``out`` (tuple candidates) are left for :func:`tuple_trials`.
@@ -167,7 +202,7 @@ def search_trials(g, gnorm2, unit, data, k, max_sweeps, n_alt, out):  # pragma: 
         _matvec(g, s, gs)
         base = _pursue_and_alternate(g, gnorm2, gs, s, k, max_sweeps, q, cg, sc)
         out[i, 0] = base
-        _runners_up(unit, base, n_alt, sc, out[i], 1)
+        _runners_up(unit, indptr, indices, base, n_alt, sc, out[i], 1)
 
 
 @numba.njit(cache=True)
