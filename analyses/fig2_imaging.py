@@ -187,10 +187,13 @@ def main() -> None:
     p.add_argument("--truth", choices=["olss", "prior"], default="olss",
                    help="'prior': a new scene per draw from the bounded prior U(0, 1) "
                         "(checks coverage where truth and prior agree; no 0/1 estimators)")
+    p.add_argument("--n-samples", type=int, default=None,
+                   help="kept draws per chain (burn-in half of it); overrides the mode's")
     p.add_argument("--no-sparse", action="store_true",
                    help="skip the spike-and-slab rows (the slowest sampler)")
     args = p.parse_args()
     trials, n_mcmc, n_samples = (40, 20, 300) if args.full else (20, 1, 60)
+    n_samples = n_samples if args.n_samples is None else args.n_samples
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = np.random.SeedSequence(args.seed).spawn(len(CONVENTIONS))
