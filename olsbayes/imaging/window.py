@@ -106,9 +106,12 @@ def line_moves(a: np.ndarray, index: np.ndarray, vec: np.ndarray) -> WindowMoves
     """Moves along given directions: ``vec[m]`` on pixels ``index[m]``, shapes (M, w)."""
     index = np.asarray(index, dtype=int)
     vec = np.asarray(vec, dtype=float)
-    response = np.einsum("nmw,mw->mn", a[:, index], vec)
+    cols = np.ascontiguousarray(a.T)
+    response = np.empty((index.shape[0], a.shape[0]))
+    for m in range(index.shape[0]):  # one (w, N) gather at a time: no (M, w, N) temporary
+        response[m] = vec[m] @ cols[index[m]]
     lam = np.einsum("mn,mn->m", response, response)
-    return WindowMoves(index, vec, np.ascontiguousarray(response), lam)
+    return WindowMoves(index, vec, response, lam)
 
 
 def coordinate_moves(a: np.ndarray, pairs: np.ndarray | None = None) -> WindowMoves:
