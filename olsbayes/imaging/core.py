@@ -102,7 +102,7 @@ def image(
         Default 200 (0 for ``"two-level"``, which has no sampler; the
         Gaussian prior is closed form and ignores it; ``"sparse"`` needs >= 4).
     sampler : {"gibbs", "hmc", "eigen"}
-        For the box priors: Gibbs (single-site plus neighbour-pair moves),
+        For the box priors: Gibbs (single-site, neighbour-pair and window moves),
         ``"eigen"`` (single-site plus exact moves along every eigenvector of
         ``A^T A``, which include the null space; :mod:`olsbayes.imaging.eigen`) or
         exact HMC (Pakman & Paninski; exact but can need ~1e4 wall bounces per
