@@ -15,8 +15,9 @@ Settings: ``n_sensors``, ``sigma``, ``n_sources`` and those of
 :func:`olsbayes.studies.scoring.ring_truth`; optionally ``i_max`` (intensity
 prior bound of the Bayesian methods, default 3 * intensity), ``maxcall``,
 ``n_walkers`` and ``select`` (also choose K with :func:`~olsbayes.select.select_k`,
-method "laplace", reporting ``k_hat``).  Every trial draws only from its own Generator (the scene, its
-noise, then the method's randomness), so results do not depend on chunking.
+method "laplace", reporting ``k_hat``).  Every trial draws only from its own
+Generator (the scene, its noise, then the method's randomness), so results do
+not depend on chunking.
 """
 
 from __future__ import annotations
