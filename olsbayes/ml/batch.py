@@ -150,12 +150,16 @@ def refine_batch(
     max_iter: int = 300,
     ftol: float = 1e-10,
     frozen: np.ndarray | None = None,
+    kinks: bool = False,
 ) -> LMOutcome:
     """Bounded Levenberg–Marquardt from ``x0`` for every trial.
 
     Compiled (:func:`olsbayes.ml._kernel.lm_batch`) when the kernel covers the
     model, else :func:`refine_batch_numpy`; both run the same algorithm and
-    take and return the same (see :func:`refine_batch_numpy`).
+    take and return the same (see :func:`refine_batch_numpy`).  ``kinks``
+    (compiled path, ring with the clipped cosine): rejected steps are cut back
+    to the first sub-sensor horizon they cross, and a source stuck on one has
+    its angle held (see :func:`olsbayes.ml._kernel._lm_trial`).
     """
     from . import _kernel  # numba is imported on first use, not with the package
 
@@ -163,7 +167,8 @@ def refine_batch(
     if not _kernel.supports(model):
         return refine_batch_numpy(model, data, x0, max_iter=max_iter, ftol=ftol, frozen=frozen)
     x, chi2, conv, nev, stalled = _kernel.lm_batch(
-        model, data, np.asarray(x0, dtype=float), max_iter, ftol, frozen, _z_floor(model))
+        model, data, np.asarray(x0, dtype=float), max_iter, ftol, frozen, _z_floor(model),
+        kinks)
     return LMOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev, stalled=stalled)
 
 

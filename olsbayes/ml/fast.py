@@ -9,7 +9,10 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    O(T M N K^2) per sweep plus O(T C(M_c, K) K^2) with C(M_c, K) capped.
 2. :func:`~olsbayes.ml.batch.refine_batch` -- one joint bounded
    Levenberg–Marquardt run over all candidates of all trials at once (analytic
-   Jacobian); the best likelihood per trial wins.
+   Jacobian); the best likelihood per trial wins.  Steps are cut at the first
+   sub-sensor horizon they cross (``kinks=True``): a minimum with a source on
+   a kink is then reached in ~10 evaluations instead of ~100 zig-zag ones
+   (Fig. 3 at sigma = 0.1: 424 -> 121 evaluations per fit, same optima).
 3. Deterministic perturbed restarts around that optimum: every source location
    shifted by fixed sign patterns of ``restart_scale`` grid steps, all refined
    in one more batched LM run.  They reach the neighbouring basins of the
@@ -44,6 +47,9 @@ __all__ = ["fit_fast", "restart_patterns", "hop_starts"]
 
 #: Kink hops apply from this many sources on (K = 1 has the kink-triggered restarts).
 HOP_MIN_SOURCES = 2
+
+#: LM runs of the starts cut steps at sub-sensor horizons (refine_batch ``kinks``).
+KINK_CUTS = True
 
 
 def restart_patterns(k: int, d: int, n: int) -> np.ndarray:
@@ -202,7 +208,7 @@ def _refine_starts(
     """One batched LM run over starts (T, C, K, d+1); the best chi^2 per trial wins."""
     t, c = starts.shape[:2]
     cand = refine_batch(model, np.repeat(data, c, axis=0), starts.reshape(t * c, -1),
-                        max_iter=max_iter)
+                        max_iter=max_iter, kinks=KINK_CUTS)
     pick = np.arange(t) * c + np.argmin(cand.chi2.reshape(t, c), axis=1)
     out = _take(cand, pick)
     return LMOutcome(out.x, out.chi2, out.converged,
