@@ -336,3 +336,28 @@ def test_kink_cuts_same_best_fewer_evaluations():
     on = _kinked(model, plain.x)
     assert on.any(axis=1).sum() >= 50  # the case at issue is common here
     assert cut.n_evaluations.sum() < 0.5 * plain.n_evaluations.sum()
+
+
+@pytest.mark.parametrize("k", [2, 3, 4])
+def test_blocked_tuple_search_equals_per_trial(k):
+    """Tuple search over blocks of trials (K = 2..4) == one trial at a time, exactly."""
+    from olsbayes.ml import _search_kernel as sk
+    from olsbayes.ml.grid import atoms, cached_default_grid
+    from olsbayes.ml.search import _plan_views
+    from olsbayes.ml.tuples import tuple_plans
+
+    model = ob.Model(ob.Ring(30), 0.05)
+    rng = np.random.default_rng(8)
+    scene = ob.Scene(directions=rng.uniform(0, 2 * np.pi, k),
+                     intensities=np.linspace(1.0, 0.3, k))
+    data = model.simulate(scene, rng, size=2 * sk.TUPLE_BLOCK + 5)
+    g = atoms(model, cached_default_grid(model))
+    for plan in tuple_plans(g, k, 3):
+        atoms_c, subset, columns, inv_rows = _plan_views(plan)
+        out = np.zeros((data.shape[0], 1, k), np.int64)
+        sk.tuple_trials(atoms_c, subset, columns, inv_rows, data, out, 0)
+        corr = np.empty(atoms_c.shape[0])
+        for i, s in enumerate(data):
+            sk._matvec(atoms_c, s, corr)
+            best = sk._best_tuple(corr, columns, inv_rows)
+            np.testing.assert_array_equal(out[i, 0], subset[columns[:, best]])

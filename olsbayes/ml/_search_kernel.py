@@ -247,16 +247,97 @@ def _best_tuple(corr, columns, inv_rows):  # pragma: no cover - compiled
     return arg
 
 
+#: Trials per block of the tuple search: each tuple's inverse Gram matrix is read
+#: once per block and applied to every trial of it (unit-stride over trials).
+TUPLE_BLOCK = 16
+
+
+@numba.njit(cache=True)
+def _block_best(corr_t, columns, inv_rows, best, arg):  # pragma: no cover - compiled
+    """:func:`_best_tuple` for a block of trials at once, K = 2..4.
+
+    corr_t (Mc, B): coarse correlations, one column per trial; best (B,) and arg
+    (B,) are updated in tuple order (strictly greater: the first maximum), with
+    the same arithmetic per trial as :func:`_best_tuple`, so the same tuples.
+    """
+    k, n_c = columns.shape
+    nb = best.size
+    for c in range(n_c):
+        i0, i1 = columns[0, c], columns[1, c]
+        if k == 2:
+            a00, a01 = inv_rows[0, 0, c], inv_rows[0, 1, c]
+            a10, a11 = inv_rows[1, 0, c], inv_rows[1, 1, c]
+            for tb in range(nb):
+                b0, b1 = corr_t[i0, tb], corr_t[i1, tb]
+                f0 = a00 * b0 + a01 * b1
+                f1 = a10 * b0 + a11 * b1
+                sc = b0 * f0 + b1 * f1
+                up = (f0 >= 0.0) & (f1 >= 0.0) & (sc > best[tb])
+                best[tb] = sc if up else best[tb]
+                arg[tb] = c if up else arg[tb]
+        elif k == 3:
+            i2 = columns[2, c]
+            a00, a01, a02 = inv_rows[0, 0, c], inv_rows[0, 1, c], inv_rows[0, 2, c]
+            a10, a11, a12 = inv_rows[1, 0, c], inv_rows[1, 1, c], inv_rows[1, 2, c]
+            a20, a21, a22 = inv_rows[2, 0, c], inv_rows[2, 1, c], inv_rows[2, 2, c]
+            for tb in range(nb):
+                b0, b1, b2 = corr_t[i0, tb], corr_t[i1, tb], corr_t[i2, tb]
+                f0 = a00 * b0 + a01 * b1 + a02 * b2
+                f1 = a10 * b0 + a11 * b1 + a12 * b2
+                f2 = a20 * b0 + a21 * b1 + a22 * b2
+                sc = b0 * f0 + b1 * f1 + b2 * f2
+                up = (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) & (sc > best[tb])
+                best[tb] = sc if up else best[tb]
+                arg[tb] = c if up else arg[tb]
+        else:
+            i2, i3 = columns[2, c], columns[3, c]
+            for tb in range(nb):
+                b0, b1, b2, b3 = corr_t[i0, tb], corr_t[i1, tb], corr_t[i2, tb], corr_t[i3, tb]
+                f0 = inv_rows[0, 0, c] * b0 + inv_rows[0, 1, c] * b1
+                f0 = f0 + inv_rows[0, 2, c] * b2 + inv_rows[0, 3, c] * b3
+                f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1
+                f1 = f1 + inv_rows[1, 2, c] * b2 + inv_rows[1, 3, c] * b3
+                f2 = inv_rows[2, 0, c] * b0 + inv_rows[2, 1, c] * b1
+                f2 = f2 + inv_rows[2, 2, c] * b2 + inv_rows[2, 3, c] * b3
+                f3 = inv_rows[3, 0, c] * b0 + inv_rows[3, 1, c] * b1
+                f3 = f3 + inv_rows[3, 2, c] * b2 + inv_rows[3, 3, c] * b3
+                sc = b0 * f0 + b1 * f1 + b2 * f2 + b3 * f3
+                up = (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) & (f3 >= 0.0) & (sc > best[tb])
+                best[tb] = sc if up else best[tb]
+                arg[tb] = c if up else arg[tb]
+
+
 @numba.njit(cache=True)
 def tuple_trials(atoms, subset, columns, inv_rows, data, out, col):  # pragma: no cover
-    """Best feasible K-tuple of one coarse plan per trial into out[:, col] (tuples.tuple_search)."""
+    """Best feasible K-tuple of one coarse plan per trial into out[:, col] (tuples.tuple_search).
+
+    K = 2..4 in blocks of :data:`TUPLE_BLOCK` trials (:func:`_block_best`), other K
+    one trial at a time (:func:`_best_tuple`); the same tuples either way.
+    """
     k = columns.shape[0]
-    corr = np.empty(atoms.shape[0])
-    for i in range(data.shape[0]):
-        _matvec(atoms, data[i], corr)
-        arg = _best_tuple(corr, columns, inv_rows)
-        for a in range(k):
-            out[i, col, a] = subset[columns[a, arg]]
+    mc, t = atoms.shape[0], data.shape[0]
+    corr = np.empty(mc)
+    if k < 2 or k > 4:
+        for i in range(t):
+            _matvec(atoms, data[i], corr)
+            arg = _best_tuple(corr, columns, inv_rows)
+            for a in range(k):
+                out[i, col, a] = subset[columns[a, arg]]
+        return
+    nb = TUPLE_BLOCK
+    corr_t, best, args = np.zeros((mc, nb)), np.empty(nb), np.empty(nb, np.int64)
+    for start in range(0, t, nb):
+        m = min(nb, t - start)
+        for tb in range(m):
+            _matvec(atoms, data[start + tb], corr)
+            for u in range(mc):
+                corr_t[u, tb] = corr[u]
+        best[:] = -np.inf
+        args[:] = 0
+        _block_best(corr_t, columns, inv_rows, best, args)
+        for tb in range(m):
+            for a in range(k):
+                out[start + tb, col, a] = subset[columns[a, args[tb]]]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
