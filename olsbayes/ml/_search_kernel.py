@@ -249,7 +249,7 @@ def _best_tuple(corr, columns, inv_rows):  # pragma: no cover - compiled
 
 #: Trials per block of the tuple search: each tuple's inverse Gram matrix is read
 #: once per block and applied to every trial of it (unit-stride over trials).
-TUPLE_BLOCK = 16
+TUPLE_BLOCK = 64
 
 
 @numba.njit(cache=True)
@@ -311,20 +311,21 @@ def _block_best(corr_t, columns, inv_rows, best, arg):  # pragma: no cover - com
 def tuple_trials(atoms, subset, columns, inv_rows, data, out, col):  # pragma: no cover
     """Best feasible K-tuple of one coarse plan per trial into out[:, col] (tuples.tuple_search).
 
-    K = 2..4 in blocks of :data:`TUPLE_BLOCK` trials (:func:`_block_best`), other K
-    one trial at a time (:func:`_best_tuple`); the same tuples either way.
+    K = 2..4 in blocks of up to :data:`TUPLE_BLOCK` trials (:func:`_block_best`), other
+    K (and K <= 3 for fewer than 4 trials) one trial at a time (:func:`_best_tuple`);
+    the same tuples either way.
     """
     k = columns.shape[0]
     mc, t = atoms.shape[0], data.shape[0]
     corr = np.empty(mc)
-    if k < 2 or k > 4:
+    if k < 2 or k > 4 or (t < 4 and k < 4):  # (K <= 3: one lane is slower blocked)
         for i in range(t):
             _matvec(atoms, data[i], corr)
             arg = _best_tuple(corr, columns, inv_rows)
             for a in range(k):
                 out[i, col, a] = subset[columns[a, arg]]
         return
-    nb = TUPLE_BLOCK
+    nb = min(TUPLE_BLOCK, t)  # a single fit scans one lane
     corr_t, best, args = np.zeros((mc, nb)), np.empty(nb), np.empty(nb, np.int64)
     for start in range(0, t, nb):
         m = min(nb, t - start)
