@@ -361,3 +361,21 @@ def test_blocked_tuple_search_equals_per_trial(k):
             sk._matvec(atoms_c, s, corr)
             best = sk._best_tuple(corr, columns, inv_rows)
             np.testing.assert_array_equal(out[i, 0], subset[columns[:, best]])
+
+
+def test_search_gram_route_equals_atom_route(monkeypatch):
+    """The search's projections through the atoms' Gram matrix (M <= _GRAM_ATOMS) pick
+    the same candidates as projecting with the atoms themselves (rounding only)."""
+    from olsbayes.ml import search
+    from olsbayes.ml.grid import atoms, cached_default_grid
+
+    model = ob.Model(ob.Ring(30), 1e-2)
+    ang = 0.37 + 2 * np.pi * np.arange(3) / 3 + 0.13 * np.arange(3)
+    data = model.simulate(ob.Scene(directions=ang, intensities=[1.0, 0.8, 0.6]), 4, size=200)
+    g = atoms(model, cached_default_grid(model))
+    a = search.grid_search(g, data, 3)
+    monkeypatch.setattr(search, "_GRAM_ATOMS", 0)
+    monkeypatch.setattr(search, "_VIEWS", {})
+    b = search.grid_search(g, data, 3)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_allclose(a[2], b[2], rtol=1e-9)

@@ -47,11 +47,12 @@ def _argmax(v):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
-def _basis(g, idx, skip, q):  # pragma: no cover - compiled
+def _basis(g, idx, skip, q, coef):  # pragma: no cover - compiled
     """Orthonormal rows q[:r] spanning the atoms g[idx[j]], j != skip; returns r.
 
     Modified Gram–Schmidt with one reorthogonalisation pass; an atom already in
-    the span of the previous ones (to 1e-12 of its norm) adds no row.
+    the span of the previous ones (to 1e-12 of its norm) adds no row.  coef[i, j]:
+    q[i] as a combination of the atoms g[idx[j]] (for :func:`_scores`' Gram route).
     """
     r = 0
     n = g.shape[1]
@@ -59,6 +60,9 @@ def _basis(g, idx, skip, q):  # pragma: no cover - compiled
         if j == skip:
             continue
         v = q[r]
+        for u in range(idx.size):
+            coef[r, u] = 0.0
+        coef[r, j] = 1.0
         norm0 = 0.0
         for t in range(n):
             v[t] = g[idx[j], t]
@@ -70,6 +74,8 @@ def _basis(g, idx, skip, q):  # pragma: no cover - compiled
                     c += q[i, t] * v[t]
                 for t in range(n):
                     v[t] -= c * q[i, t]
+                for u in range(idx.size):
+                    coef[r, u] -= c * coef[i, u]
         norm = 0.0
         for t in range(n):
             norm += v[t] * v[t]
@@ -78,19 +84,38 @@ def _basis(g, idx, skip, q):  # pragma: no cover - compiled
         inv = 1.0 / np.sqrt(norm)
         for t in range(n):
             v[t] *= inv
+        for u in range(idx.size):
+            coef[r, u] *= inv
         r += 1
     return r
 
 
 @numba.njit(cache=True)
-def _scores(g, gnorm2, gs, s, q, r, cg, out):  # pragma: no cover - compiled
-    """Residual-sum-of-squares drop of every atom given the r bases q (search._scores)."""
+def _scores(g, gram, gnorm2, gs, s, idx, q, coef, r, cg, cs, out):  # pragma: no cover
+    """Residual-sum-of-squares drop of every atom given the r bases q (search._scores).
+
+    The atoms' components along q, g @ q[j], come from the Gram matrix of the
+    atoms (M, M) when given (``gram.shape[0] > 0``): combinations of r rows of
+    it, O(r K M) instead of O(r N M).
+    """
     m = g.shape[0]
-    cs = np.zeros(r)
     for j in range(r):
-        _matvec(g, q[j], cg[j])
-        for t in range(s.size):
-            cs[j] += q[j, t] * s[t]
+        if gram.shape[0]:
+            acc = 0.0
+            for i in range(m):
+                cg[j, i] = 0.0
+            for u in range(idx.size):
+                w = coef[j, u]
+                if w != 0.0:
+                    acc += w * gs[idx[u]]
+                    for i in range(m):
+                        cg[j, i] += w * gram[idx[u], i]
+            cs[j] = acc
+        else:
+            _matvec(g, q[j], cg[j])
+            cs[j] = 0.0
+            for t in range(s.size):
+                cs[j] += q[j, t] * s[t]
     for i in range(m):
         num, den = gs[i], gnorm2[i]
         for j in range(r):
@@ -101,26 +126,27 @@ def _scores(g, gnorm2, gs, s, q, r, cg, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _given_others(g, gnorm2, gs, s, idx, j, q, cg, out):  # pragma: no cover - compiled
-    """Scores of source j's atom given the other atoms idx (all but j)."""
-    r = _basis(g, idx, j, q)
-    _scores(g, gnorm2, gs, s, q, r, cg, out)
+def _given_others(g, gram, gnorm2, gs, s, idx, j, w, out):  # pragma: no cover - compiled
+    """Scores of source j's atom given the other atoms idx (all but j); w = (q, coef, cg, cs)."""
+    q, coef, cg, cs = w
+    r = _basis(g, idx, j, q, coef)
+    _scores(g, gram, gnorm2, gs, s, idx, q, coef, r, cg, cs, out)
 
 
 @numba.njit(cache=True)
-def _pursue_and_alternate(g, gnorm2, gs, s, k, max_sweeps, q, cg, sc):  # pragma: no cover
+def _pursue_and_alternate(g, gram, gnorm2, gs, s, k, max_sweeps, w, sc):  # pragma: no cover
     """Pursuit then alternating projection; sc (K, M) ends as each source's scores
     given the others at the returned atoms (search._pursuit / _alternate)."""
     idx = np.zeros(k, np.int64)
     for step in range(k):
-        _given_others(g, gnorm2, gs, s, idx[:step], -1, q, cg, sc[0])
+        _given_others(g, gram, gnorm2, gs, s, idx[:step], -1, w, sc[0])
         idx[step] = _argmax(sc[0])
     if k == 1:
         return idx
     for _ in range(max_sweeps):
         changed = False
         for j in range(k):
-            _given_others(g, gnorm2, gs, s, idx, j, q, cg, sc[j])
+            _given_others(g, gram, gnorm2, gs, s, idx, j, w, sc[j])
             best = _argmax(sc[j])
             if sc[j, best] > sc[j, idx[j]] * (1 + 1e-12):
                 idx[j] = best
@@ -128,7 +154,7 @@ def _pursue_and_alternate(g, gnorm2, gs, s, k, max_sweeps, q, cg, sc):  # pragma
         if not changed:
             return idx
     for j in range(k):  # no converged sweep: the scores at the final atoms
-        _given_others(g, gnorm2, gs, s, idx, j, q, cg, sc[j])
+        _given_others(g, gram, gnorm2, gs, s, idx, j, w, sc[j])
     return idx
 
 
@@ -188,19 +214,22 @@ def _runners_up(unit, indptr, indices, base, n_alt, sc, out, first):  # pragma: 
 
 
 @numba.njit(cache=True)
-def search_trials(g, gnorm2, unit, indptr, indices, data, k, max_sweeps, n_alt,
+def search_trials(g, gram, gnorm2, unit, indptr, indices, data, k, max_sweeps, n_alt,
                   out):  # pragma: no cover - compiled
     """Pursuit + alternation + runners-up for every trial: out (T, C, K), rows 0..K n_alt.
 
-    The remaining rows of ``out`` (tuple candidates) are left for :func:`tuple_trials`.
+    gram: the atoms' Gram matrix (M, M), or (0, 0) to project with the atoms
+    themselves.  The remaining rows of ``out`` (tuple candidates) are left for
+    :func:`tuple_trials`.
     """
     m, n = g.shape
-    gs, q = np.empty(m), np.empty((max(k, 1), n))
-    cg, sc = np.empty((max(k, 1), m)), np.empty((k, m))
+    kk = max(k, 1)
+    gs, sc = np.empty(m), np.empty((k, m))
+    w = (np.empty((kk, n)), np.zeros((kk, kk)), np.empty((kk, m)), np.empty(kk))
     for i in range(data.shape[0]):
         s = data[i]
         _matvec(g, s, gs)
-        base = _pursue_and_alternate(g, gnorm2, gs, s, k, max_sweeps, q, cg, sc)
+        base = _pursue_and_alternate(g, gram, gnorm2, gs, s, k, max_sweeps, w, sc)
         out[i, 0] = base
         _runners_up(unit, indptr, indices, base, n_alt, sc, out[i], 1)
 

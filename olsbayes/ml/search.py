@@ -186,11 +186,14 @@ def _memo(obj: object, make, readonly: bool = True) -> tuple:
 
 #: Largest M^2 N for which the atoms' basins (neighbour lists) are precomputed.
 _NEIGHBOUR_WORK = 50_000_000
+#: Largest M for which the atoms' Gram matrix (M^2 doubles) serves the search's projections.
+_GRAM_ATOMS = 1024
 
 
 def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Read-only views of the atoms, their squared norms, the unit atoms and the CSR
-    neighbour lists of the unit atoms (empty when M^2 N > :data:`_NEIGHBOUR_WORK`)."""
+    """Read-only views of the atoms, their Gram matrix (empty when M > :data:`_GRAM_ATOMS`),
+    squared norms, the unit atoms and the CSR neighbour lists of the unit atoms
+    (empty when M^2 N > :data:`_NEIGHBOUR_WORK`)."""
     from . import _search_kernel as sk
 
     def make(a: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -200,8 +203,9 @@ def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
             indptr, indices = sk.neighbours(unit)
         else:
             indptr, indices = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return (_frozen_view(a), _frozen_view(gnorm2), unit, _frozen_view(indptr, np.int64),
-                _frozen_view(indices, np.int64))
+        gram = a @ a.T if a.shape[0] <= _GRAM_ATOMS else np.zeros((0, 0))
+        return (_frozen_view(a), _frozen_view(gram), _frozen_view(gnorm2), unit,
+                _frozen_view(indptr, np.int64), _frozen_view(indices, np.int64))
 
     return _memo(g, make, readonly=not g.flags.writeable)
 
@@ -225,12 +229,12 @@ def grid_search(
     """
     from . import _search_kernel as sk  # numba is imported on first use
 
-    gv, gnorm2, unit, indptr, indices = _atom_views(g)
+    gv, gram, gnorm2, unit, indptr, indices = _atom_views(g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
     t, first = data.shape[0], 1 + k * n_alt
     idx = np.empty((t, first + len(plans), k), dtype=np.int64)
     s = _frozen_view(data)
-    sk.search_trials(gv, gnorm2, unit, indptr, indices, s, k, max_sweeps, n_alt, idx)
+    sk.search_trials(gv, gram, gnorm2, unit, indptr, indices, s, k, max_sweeps, n_alt, idx)
     for j, plan in enumerate(plans):
         sk.tuple_trials(*_plan_views(plan), s, idx, first + j)
     inten, rss = np.empty(idx.shape), np.empty(idx.shape[:2])
