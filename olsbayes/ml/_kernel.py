@@ -271,8 +271,8 @@ def _solve_spd(m, b, out):  # pragma: no cover - compiled
             _solve(m, b, out)
             return
         out[c] = m[c, c]  # save the diagonal for the fallback
-        m[c, c] = math.sqrt(d)
-        inv = 1.0 / m[c, c]
+        inv = 1.0 / math.sqrt(d)
+        m[c, c] = inv  # the diagonal holds 1 / L_cc (multiplications below)
         for i in range(c + 1, n):
             v = m[i, c]
             for k in range(c):
@@ -282,12 +282,12 @@ def _solve_spd(m, b, out):  # pragma: no cover - compiled
         acc = b[i]
         for k in range(i):
             acc -= m[i, k] * out[k]
-        out[i] = acc / m[i, i]
+        out[i] = acc * m[i, i]
     for i in range(n - 1, -1, -1):  # backward: L^T x = y
         acc = out[i]
         for k in range(i + 1, n):
             acc -= m[k, i] * out[k]
-        out[i] = acc / m[i, i]
+        out[i] = acc * m[i, i]
 
 
 @numba.njit(cache=True, inline="always")
@@ -316,8 +316,6 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
             for j in range(p):
                 ad[i, j] = 0.0
                 ad[j, i] = 0.0
-    for i in range(p):
-        if fx[i]:
             ad[i, i] = 1.0
     _solve_spd(ad, gm, step)
     pred = 0.0
