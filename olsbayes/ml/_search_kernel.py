@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ._kernel import _solve
+from ._linalg_kernel import _solve
 
 __all__ = ["intensities_trials", "neighbours", "search_trials", "tuple_trials"]
 
