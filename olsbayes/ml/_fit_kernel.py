@@ -17,7 +17,8 @@ import numba
 import numpy as np
 
 from ..model import Model
-from ._kernel import _arrays, _normal_eq, _residual
+from ._kernel import _arrays, _normal_eq
+from ._model_kernel import _residual
 
 __all__ = ["chi2_fisher", "covariances", "hop_starts", "on_kink"]
 

@@ -13,8 +13,9 @@ of LAPACK's).
 The forward model and its analytic Jacobian are evaluated in-kernel for the
 three source kinds of :class:`~olsbayes.Model` and the laws
 :class:`~olsbayes.sensitivity.Cosine` and
-:class:`~olsbayes.sensitivity.CosinePower`; trig-free per sensor-source pair
-(one cos/sin per source and iteration).  Other laws take the numpy path.
+:class:`~olsbayes.sensitivity.CosinePower` (:mod:`._model_kernel`); trig-free
+per sensor-source pair (one cos/sin per source and iteration).  Other laws take
+the numpy path.
 
 Option (compiled only, used by the fast fit): ``kinks`` cuts rejected steps
 at the sub-sensor horizons of a ring with the clipped cosine (:func:`_lm_trial`).
@@ -34,6 +35,7 @@ import numpy as np
 from ..model import Model
 from ..sensitivity import Cosine, CosinePower
 from ._linalg_kernel import _solve_spd
+from ._model_kernel import _LAW_COSINE, _LAW_POWER, _residual
 
 __all__ = ["KINDS", "law_code", "lm_batch", "supports"]
 
@@ -42,8 +44,6 @@ KINDS = ("angle", "lonlat", "position")
 
 #: Damping above which no descent step is representable (as in batch.py).
 LAMBDA_MAX = 1e14
-
-_LAW_COSINE, _LAW_POWER = 0, 1
 
 
 def law_code(model: Model) -> tuple[int, float] | None:
@@ -59,134 +59,6 @@ def law_code(model: Model) -> tuple[int, float] | None:
 def supports(model: Model) -> bool:
     """Whether :func:`lm_batch` covers this model (kind and sensitivity law)."""
     return model.kind in KINDS and law_code(model) is not None
-
-
-@numba.njit(cache=True)
-def _power(x, p):  # pragma: no cover - compiled
-    """x**p by repeated squaring of the integer part (as sensitivity._power)."""
-    n = int(p)
-    frac = p - n
-    out, base, first = 1.0, x, True
-    while n:
-        if n & 1:
-            out = base if first else out * base
-            first = False
-        n >>= 1
-        if n:
-            base = base * base
-    if frac == 0.5:
-        out *= math.sqrt(x)
-    elif frac != 0.0:
-        out *= x**frac
-    return out
-
-
-@numba.njit(cache=True)
-def _law(c, law, p):  # pragma: no cover - compiled
-    """g(c) and dg/dc of the clipped cosine (law 0) or max(c, 0)**p (law 1)."""
-    cp = c if c > 0.0 else 0.0
-    if law == _LAW_COSINE:
-        return cp, 1.0 if cp > 0.0 else 0.0
-    return _power(cp, p), p * _power(cp, p - 1.0)
-
-
-@numba.njit(cache=True, inline="always")
-def _eval_ring_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
-    """:func:`_eval_far` for the planar ring and the clipped cosine (branch-free loops)."""
-    for k in range(x.size // 2):
-        u0, u1, inten = math.cos(x[2 * k]), math.sin(x[2 * k]), x[2 * k + 1]
-        ig, ia = 2 * k + 1, 2 * k  # (no row views: each costs reference counting)
-        if want_jac:
-            for n in range(nrm.shape[1]):
-                c = u0 * nrm[0, n] + u1 * nrm[1, n]
-                dc = -u1 * nrm[0, n] + u0 * nrm[1, n]
-                jt[ig, n] = max(c, 0.0)
-                jt[ia, n] = inten * dc if c > 0.0 else 0.0
-        else:
-            for n in range(nrm.shape[1]):
-                jt[ig, n] = max(u0 * nrm[0, n] + u1 * nrm[1, n], 0.0)
-
-
-@numba.njit(cache=True, inline="always")
-def _eval_far(kind, law, p, nrm, x, jt, want_jac):  # pragma: no cover - compiled
-    """Rows of jt (P, N): g(c) per source, and with want_jac the location rows."""
-    d1 = 2 if kind == 0 else 3
-    if kind == 0 and law == _LAW_COSINE:
-        _eval_ring_cosine(nrm, x, jt, want_jac)
-        return
-    for k in range(x.size // d1):
-        b = k * d1
-        inten = x[b + d1 - 1]
-        if kind == 0:
-            u0, u1, u2 = math.cos(x[b]), math.sin(x[b]), 0.0
-        else:
-            cla, sla = math.cos(x[b + 1]), math.sin(x[b + 1])
-            clo, slo = math.cos(x[b]), math.sin(x[b])
-            u0, u1, u2 = cla * clo, cla * slo, sla
-        for n in range(nrm.shape[1]):
-            if kind == 0:
-                c = u0 * nrm[0, n] + u1 * nrm[1, n]
-            else:
-                c = u0 * nrm[0, n] + u1 * nrm[1, n] + u2 * nrm[2, n]
-            g, dg = _law(c, law, p)
-            jt[b + d1 - 1, n] = g
-            if want_jac:
-                w = inten * dg
-                if kind == 0:
-                    jt[b, n] = w * (-u1 * nrm[0, n] + u0 * nrm[1, n])
-                else:
-                    jt[b, n] = w * (-cla * slo * nrm[0, n] + cla * clo * nrm[1, n])
-                    jt[b + 1, n] = w * (-sla * clo * nrm[0, n] - sla * slo * nrm[1, n]
-                                        + cla * nrm[2, n])
-
-
-@numba.njit(cache=True, inline="always")
-def _eval_near(law, p, nrm, pos, x, jt, want_jac):  # pragma: no cover - compiled
-    """As :func:`_eval_far` for near sources (positions): g(c) / r^2 and its gradient."""
-    for k in range(x.size // 4):
-        b = k * 4
-        inten = x[b + 3]
-        for n in range(nrm.shape[1]):
-            d0, d1, d2 = x[b] - pos[0, n], x[b + 1] - pos[1, n], x[b + 2] - pos[2, n]
-            r2 = d0 * d0 + d1 * d1 + d2 * d2
-            r = math.sqrt(r2)
-            c = (d0 * nrm[0, n] + d1 * nrm[1, n] + d2 * nrm[2, n]) / r
-            g, dg = _law(c, law, p)
-            jt[b + 3, n] = g / r2
-            if want_jac:
-                e, f = dg / r2, 2.0 * g / (r2 * r2)
-                cr = c / r2
-                jt[b, n] = inten * (e * (nrm[0, n] / r - cr * d0) - f * d0)
-                jt[b + 1, n] = inten * (e * (nrm[1, n] / r - cr * d1) - f * d1)
-                jt[b + 2, n] = inten * (e * (nrm[2, n] / r - cr * d2) - f * d2)
-
-
-@numba.njit(cache=True, inline="always")
-def _residual(kind, law, p, nrm, pos, x, s, jt, r, want_jac):  # pragma: no cover
-    """Fill jt (intensity rows, + location rows if want_jac) and r = s - response; chi^2."""
-    if kind == 2:
-        _eval_near(law, p, nrm, pos, x, jt, want_jac)
-    else:
-        _eval_far(kind, law, p, nrm, x, jt, want_jac)
-    d1 = kind + 2
-    for n in range(s.size):
-        r[n] = 0.0
-    for k in range(x.size // d1):  # r = response, summed over sources in order
-        row = k * d1 + d1 - 1
-        for n in range(s.size):
-            r[n] += jt[row, n] * x[row]
-    for n in range(s.size):
-        r[n] = s[n] - r[n]
-    return _sumsq(r)
-
-
-@numba.njit(cache=True, fastmath={"reassoc"}, inline="always")
-def _sumsq(r):  # pragma: no cover - compiled
-    """Sum of squares (SIMD partial sums)."""
-    acc = 0.0
-    for n in range(r.size):
-        acc += r[n] * r[n]
-    return acc
 
 
 @numba.njit(cache=True, inline="always")
@@ -286,9 +158,23 @@ def _kink_alpha(nrm, x, step, jt, jt2, fk):  # pragma: no cover - compiled
     return best, src
 
 
+@numba.njit(cache=True, inline="always")
+def _near(known, n_known, x, tol):  # pragma: no cover - compiled
+    """Whether x is within tol (max norm) of one of the rows known[:n_known]."""
+    for j in range(n_known):
+        far = False
+        for i in range(x.size):
+            if abs(x[i] - known[j, i]) > tol:
+                far = True
+                break
+        if not far:
+            return True
+    return False
+
+
 @numba.njit(cache=True)
 def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
-              kinks):  # pragma: no cover
+              kinks, known, n_known, tol):  # pragma: no cover
     """Bounded LM of one trial from x (in place); returns (chi2, n_iter, converged, stalled).
 
     w: workspace arrays (jt, r, jt2, r2, a, ad, g, gm, step, x_new, fx, fk).  Proposals
@@ -302,6 +188,10 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
     its angle frozen for the rest of the run.  Without this LM approaches a
     minimum on a kink by ever shorter zig-zag steps (~100 evaluations instead
     of ~10 at sigma = 0.1).
+
+    Known optima (rows of ``known[:n_known]``, converged runs of the same data):
+    a run whose accepted iterate comes within ``tol`` (max norm) of one stops
+    there (converged; its chi^2 is not below that optimum's but for rounding).
     """
     jt, r, jt2, r2, a, ad, g, gm, step, xn, fx, fk = w
     d1 = kind + 2
@@ -336,6 +226,8 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
             x[:] = xn
             if not cut:
                 lam = max(lam / 5.0, 1e-12)
+            if _near(known, n_known, x, tol):
+                return chi2_new, it + 1, True, False
         else:
             lam *= 8.0
         stall = lam > LAMBDA_MAX and not small
@@ -348,29 +240,48 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
 
 
 @numba.njit(cache=True)
-def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol, kinks,
-            chi2, n_iter, conv, stalled):  # pragma: no cover - compiled
-    """:func:`_lm_trial` for every row of x (T, P) in place, outputs per trial."""
+def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol, kinks, group,
+            base, tol, chi2, n_iter, conv, stalled):  # pragma: no cover - compiled
+    """:func:`_lm_trial` for every row of x (T, P) in place, outputs per trial.
+
+    Rows come in groups of ``group`` runs on the same data; with tol > 0 a run
+    stops on reaching (within tol) the optimum of an earlier converged,
+    unstalled run of its group, or the group's row of ``base`` (T / group, P)
+    if that has no NaN.
+    """
     t, np_ = x.shape
     n = data.shape[1]
     w = (np.empty((np_, n)), np.empty(n), np.empty((np_, n)), np.empty(n),
          np.empty((np_, np_)), np.empty((np_, np_)), np.empty(np_), np.empty(np_),
          np.empty(np_), np.empty(np_), np.empty(np_, np.bool_), np.empty(np_, np.bool_))
+    known = np.empty((group + 1, np_))
+    n_known = 0
     for i in range(t):
+        if i % group == 0:
+            n_known = 0
+            if tol > 0.0 and not np.isnan(base[i // group, 0]):
+                known[0] = base[i // group]
+                n_known = 1
         _project(kind, zfl, x[i])
         c, m, ok, st = _lm_trial(kind, law, p, nrm, pos, zfl, data[i], x[i], frozen[i],
-                                 max_iter, ftol, w, kinks)
+                                 max_iter, ftol, w, kinks, known, n_known, tol)
         chi2[i], n_iter[i], conv[i], stalled[i] = c, m, ok, st
+        if tol > 0.0 and ok and not st:
+            known[n_known] = x[i]
+            n_known += 1
 
 
 def lm_batch(
     model: Model, data: np.ndarray, x0: np.ndarray, max_iter: int, ftol: float,
-    frozen: np.ndarray | None, z_floor: float, kinks: bool = False,
+    frozen: np.ndarray | None, z_floor: float, kinks: bool = False, group: int = 1,
+    base: np.ndarray | None = None, tol: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Run the compiled LM over data (T, N) from x0 (T, P) for a supported model.
 
     ``kinks``: cut steps at sub-sensor horizons (ring, clipped cosine; see
-    :func:`_lm_trial`) -- not in the numpy reference.
+    :func:`_lm_trial`) -- not in the numpy reference.  ``group``, ``base``,
+    ``tol``: runs of a group (consecutive rows on the same data) stop at known
+    optima (:func:`_lm_all`); tol = 0 (default) turns this off.
 
     Returns x (T, P), chi2 (T,), converged (T,), n_evaluations (T,) (two per
     iteration, as the numpy path counts) and stalled (T,).  Arguments are
@@ -384,8 +295,12 @@ def lm_batch(
           else np.require(frozen, np.bool_, ["C", "W"]))
     chi2, n_iter = np.empty(t), np.empty(t, np.int64)
     conv, stalled = np.empty(t, np.bool_), np.empty(t, np.bool_)
+    b = (np.full((1, x.shape[1]), np.nan) if base is None
+         else np.require(base, np.float64, ["C", "W"]))
+    if tol > 0.0 and (t % group or b.shape[0] != t // group):
+        raise ValueError(f"lm_batch: {t} rows, group {group}, base rows {b.shape[0]}")
     _lm_all(kind, code, p, nrm, pos, float(z_floor), s, x, fz, int(max_iter), float(ftol),
-            bool(kinks), chi2, n_iter, conv, stalled)
+            bool(kinks), int(group), b, float(tol), chi2, n_iter, conv, stalled)
     return x, chi2, conv, 2 * n_iter, stalled
 
 

@@ -151,6 +151,9 @@ def refine_batch(
     ftol: float = 1e-10,
     frozen: np.ndarray | None = None,
     kinks: bool = False,
+    group: int = 1,
+    known: np.ndarray | None = None,
+    dedupe_tol: float = 0.0,
 ) -> LMOutcome:
     """Bounded Levenberg–Marquardt from ``x0`` for every trial.
 
@@ -159,7 +162,11 @@ def refine_batch(
     take and return the same (see :func:`refine_batch_numpy`).  ``kinks``
     (compiled path, ring with the clipped cosine): rejected steps are cut back
     to the first sub-sensor horizon they cross, and a source stuck on one has
-    its angle held (see :func:`olsbayes.ml._kernel._lm_trial`).
+    its angle held (see :func:`olsbayes.ml._kernel._lm_trial`).  ``group``,
+    ``known`` (T / group, P; NaN rows: none), ``dedupe_tol`` > 0 (compiled
+    path): a run stops where it comes within dedupe_tol of the known optimum of
+    its group of ``group`` consecutive rows or of an earlier converged run of
+    the group (see :func:`olsbayes.ml._kernel._lm_all`).
     """
     from . import _kernel  # numba is imported on first use, not with the package
 
@@ -168,7 +175,7 @@ def refine_batch(
         return refine_batch_numpy(model, data, x0, max_iter=max_iter, ftol=ftol, frozen=frozen)
     x, chi2, conv, nev, stalled = _kernel.lm_batch(
         model, data, np.asarray(x0, dtype=float), max_iter, ftol, frozen, _z_floor(model),
-        kinks)
+        kinks, group, known, dedupe_tol)
     return LMOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev, stalled=stalled)
 
 

@@ -30,6 +30,13 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
 5. Fits that end with a source on a kink are polished with that source's
    location held fixed (LM's one-sided Jacobian stalls there otherwise).
 
+In stages 2-4 a run that comes within ``DEDUPE_TOL`` (max norm) of an optimum
+already found for its trial (the stage's base fit, or an earlier start's
+converged run) stops there: the starts of a trial mostly share one optimum
+(K = 3: 10 candidates, 1.03 distinct optima per trial).  Measured on 3000 fits
+of each benchmark setting: no log-likelihood changed by more than 1e-12;
+evaluations per fit K = 3 197 -> 128, Fig. 3 98 -> 63.
+
 Being deterministic, a batch fit equals a loop of single fits.
 """
 
@@ -50,6 +57,11 @@ HOP_MIN_SOURCES = 2
 
 #: LM runs of the starts cut steps at sub-sensor horizons (refine_batch ``kinks``).
 KINK_CUTS = True
+
+#: A run of a trial's starts stops within this distance (max norm, rad and
+#: intensity units) of an optimum that an earlier run of the trial converged to
+#: (refine_batch ``dedupe_tol``; 0 turns it off).
+DEDUPE_TOL = 1e-4
 
 
 def restart_patterns(k: int, d: int, n: int) -> np.ndarray:
@@ -129,7 +141,13 @@ def _restart(
     base = out.x[rows].reshape(rows.size, 1, k, d + 1)
     starts = np.repeat(base, patterns.shape[0], axis=1)
     starts[..., :d] += patterns * delta
-    return _merge(out, rows, _refine_starts(model, data[rows], starts, max_iter))
+    return _merge(out, rows, _refine_starts(model, data[rows], starts, max_iter,
+                                            _known(_take(out, rows))))
+
+
+def _known(out: LMOutcome) -> np.ndarray:
+    """Fits that converged without stalling (else NaN rows): known optima, (T, P)."""
+    return np.where((out.converged & ~out.stalled)[:, None], out.x, np.nan)
 
 
 def _merge(out: LMOutcome, rows: np.ndarray, new: LMOutcome) -> LMOutcome:
@@ -175,7 +193,8 @@ def _kink_hops(model: Model, data: np.ndarray, out: LMOutcome, max_iter: int) ->
 
     t = out.x.shape[0]
     starts = _fit_kernel.hop_starts(model, out.x).reshape(t, 2 * k, k, 2)  # == hop_starts
-    return _merge(out, np.arange(t), _refine_starts(model, data, starts, max_iter))
+    return _merge(out, np.arange(t), _refine_starts(model, data, starts, max_iter,
+                                                    _known(out)))
 
 
 def fit_fast(
@@ -203,12 +222,20 @@ def fit_fast(
 
 
 def _refine_starts(
-    model: Model, data: np.ndarray, starts: np.ndarray, max_iter: int
+    model: Model, data: np.ndarray, starts: np.ndarray, max_iter: int,
+    known: np.ndarray | None = None,
 ) -> LMOutcome:
-    """One batched LM run over starts (T, C, K, d+1); the best chi^2 per trial wins."""
+    """One batched LM run over starts (T, C, K, d+1); the best chi^2 per trial wins.
+
+    Runs reaching an optimum already found for their trial (``known`` (T, P),
+    NaN rows: none, or an earlier start's) stop there (``DEDUPE_TOL``).
+    """
     t, c = starts.shape[:2]
+    if known is None:
+        known = np.full((t, starts.shape[2] * starts.shape[3]), np.nan)
     cand = refine_batch(model, np.repeat(data, c, axis=0), starts.reshape(t * c, -1),
-                        max_iter=max_iter, kinks=KINK_CUTS)
+                        max_iter=max_iter, kinks=KINK_CUTS, group=c, known=known,
+                        dedupe_tol=DEDUPE_TOL)
     pick = np.arange(t) * c + np.argmin(cand.chi2.reshape(t, c), axis=1)
     out = _take(cand, pick)
     return LMOutcome(out.x, out.chi2, out.converged,
