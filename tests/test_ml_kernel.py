@@ -308,6 +308,10 @@ def test_compiled_covariances_match_numpy():
     assert np.isinf(a[1:]).any() and not np.isinf(a[0]).any()
     fin = np.isfinite(b)
     np.testing.assert_allclose(a[fin], b[fin], rtol=1e-9, atol=1e-12 * np.abs(b[fin]).max())
+    # the regular matrix takes the Cholesky route, the singular ones the eigenvalues
+    ok = [_fit_kernel._chol_inverse(f, np.zeros((4, 4)), np.empty((4, 4)), SINGULAR_RTOL)
+          for f in fisher]
+    assert ok == [True, False, False]
 
 
 def test_kink_cuts_same_best_fewer_evaluations():

@@ -51,11 +51,60 @@ def chi2_fisher(model: Model, x: np.ndarray, data: np.ndarray) -> tuple[np.ndarr
 
 
 @numba.njit(cache=True)
+def _chol_inverse(f, lw, out, rtol):  # pragma: no cover - compiled
+    """out = f^-1 by Cholesky if f is provably regular under the rule, else False.
+
+    lambda_min >= 1 / trace(f^-1) and lambda_max <= trace(f), so
+    rtol * trace(f) * trace(f^-1) < 0.5 means no eigenvalue is <= rtol * lambda_max
+    (with a factor 2 to spare for rounding): the pseudo-inverse is the inverse.
+    """
+    p = f.shape[0]
+    tr = 0.0
+    for c in range(p):  # lw: L (lower), then L^-1 in place
+        tr += f[c, c]
+        d = f[c, c]
+        for k in range(c):
+            d -= lw[c, k] * lw[c, k]
+        if not d > 0.0:
+            return False
+        lw[c, c] = math.sqrt(d)
+        for i in range(c + 1, p):
+            v = f[i, c]
+            for k in range(c):
+                v -= lw[i, k] * lw[c, k]
+            lw[i, c] = v / lw[c, c]
+    for c in range(p):
+        lw[c, c] = 1.0 / lw[c, c]
+        for i in range(c + 1, p):
+            acc = 0.0
+            for k in range(c, i):
+                acc += lw[i, k] * lw[k, c]
+            lw[i, c] = -acc / lw[i, i]
+    tr_inv = 0.0
+    for a in range(p):  # f^-1 = L^-T L^-1
+        for b in range(a + 1):
+            acc = 0.0
+            for k in range(a, p):
+                acc += lw[k, a] * lw[k, b]
+            out[a, b] = acc
+            out[b, a] = acc
+        tr_inv += out[a, a]
+    return rtol * tr * tr_inv < 0.5
+
+
+@numba.njit(cache=True)
 def _cov_all(fisher, rtol, out):  # pragma: no cover - compiled
-    """Pseudo-inverse of each Fisher matrix with null-space rows/columns set to inf."""
+    """Pseudo-inverse of each Fisher matrix with null-space rows/columns set to inf.
+
+    A provably regular matrix is inverted by Cholesky (:func:`_chol_inverse`; the
+    same matrix to rounding, ~20x cheaper than the eigendecomposition).
+    """
     t, p = fisher.shape[:2]
     null, singular = np.empty(p, np.bool_), np.empty(p, np.bool_)
+    lw = np.zeros((p, p))
     for i in range(t):
+        if _chol_inverse(fisher[i], lw, out[i], rtol):
+            continue
         w, v = np.linalg.eigh(fisher[i])
         top = max(w[p - 1], 2.2250738585072014e-308)
         for j in range(p):
@@ -95,7 +144,14 @@ def _hops(cross, x, eps, out):  # pragma: no cover - compiled
             th = x[i, 2 * j]
             up, down = np.inf, -np.inf
             for c in cross:
-                d = np.pi - ((np.pi - (c - th)) % _TWO_PI)  # geometry.wrap_angle
+                y = np.pi - (c - th)  # geometry.wrap_angle: d = pi - y % 2 pi; the
+                if 0.0 <= y < _TWO_PI:  # float modulo done by hand where it is one
+                    m = y  # subtraction or none (the same bits, ~10x cheaper)
+                elif -_TWO_PI <= y < 0.0:
+                    m = y + _TWO_PI
+                else:
+                    m = y % _TWO_PI
+                d = np.pi - m
                 if d > 1e-9 and d < up:
                     up = d
                 if d < -1e-9 and d > down:
