@@ -10,9 +10,12 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from olsbayes import CosinePower, Model, Ring, Scene, Sphere, crlb
+from olsbayes.crlb import SINGULAR_RTOL
 from olsbayes.errors import OlsBayesWarning
 
-SETTINGS = settings(max_examples=60, deadline=None,
+# derandomize: the examples are a fixed function of the test (CI must not flake on a
+# new random draw); the properties still run over 60 varied cases each.
+SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.too_slow])
 
 angles = st.floats(-np.pi, np.pi, allow_nan=False)
@@ -102,7 +105,14 @@ def test_crlb_scales_with_sigma(case, factor):
         b = crlb(Model(Ring(n), 0.01 * factor), scene)
     finite = np.isfinite(a.std)
     np.testing.assert_array_equal(finite, np.isfinite(b.std))
-    np.testing.assert_allclose(b.std[finite], factor * a.std[finite], rtol=1e-9)
+    # Exact in exact arithmetic; each pseudo-inverse has a relative forward error of
+    # about kappa * eps, kappa the condition number of the Fisher matrix on its
+    # non-null eigenspace (a near-zero intensity makes kappa large: 1e7 seen).
+    w = np.linalg.eigvalsh(a.fisher)
+    kept = w[w > SINGULAR_RTOL * w.max()]
+    kappa = kept.max() / kept.min()
+    rtol = 1e-12 + 4 * kappa * np.finfo(float).eps
+    np.testing.assert_allclose(b.std[finite], factor * a.std[finite], rtol=rtol)
 
 
 @SETTINGS
