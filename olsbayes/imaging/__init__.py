@@ -9,6 +9,7 @@ intensity 0 or i_max) the MAP scene of a local search.
 """
 
 from .binary import BinaryMap, two_level_log_posterior, two_level_map
+from .binary_gibbs import BinaryGibbs, credible_sets, two_level_gibbs
 from .core import PRIORS, SAMPLERS, image
 from .design import Design, analyse_design, check_directions, design_matrix
 from .eigen import eigen_gibbs
@@ -37,6 +38,9 @@ __all__ = [
     "BinaryMap",
     "two_level_map",
     "two_level_log_posterior",
+    "BinaryGibbs",
+    "two_level_gibbs",
+    "credible_sets",
     "hpd_interval",
     "split_rhat",
 ]
