@@ -164,9 +164,12 @@ def figure(keep: dict, sensors: str, out: Path) -> Path:
 
     fig = plt.figure(figsize=(17, 3.8), layout="constrained")
     d = keep["dirs"]
-    gauss = keep["gaussian"]
+    # the bounded posterior's sd where it was sampled (what the 0/1 scene's uncertainty
+    # is under the prior of the estimate shown), else the Gaussian prior's closed form
+    post, which = ((keep["bounded-gibbs"], "bounded prior") if "bounded-gibbs" in keep
+                   else (keep["gaussian"], "Gaussian prior"))
     panels = [("true sources", keep["truth"]), ("raw sub-sensor image", None),
-              ("estimate (bounded MAP)", keep["mode"]), ("posterior sd (Gaussian prior)", gauss.sd)]
+              ("estimate (bounded MAP)", keep["mode"]), (f"posterior sd ({which})", post.sd)]
     for i, (title, val) in enumerate(panels):
         ax = fig.add_subplot(1, 4, i + 1)
         if val is None:
