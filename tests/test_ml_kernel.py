@@ -256,6 +256,31 @@ def test_spd_solve_falls_back_to_lu():
         np.testing.assert_allclose(out, np.linalg.solve(m, b), rtol=1e-13, atol=1e-14)
 
 
+@pytest.mark.parametrize("p", [4, 6, 8])
+def test_unrolled_step_equals_generic_exactly(p):
+    """The straight-line damped steps for small P give the generic step's numbers, bit for bit."""
+    from olsbayes.ml import _step_kernel
+
+    unrolled = getattr(_step_kernel, f"_step{p}")
+    rng = np.random.default_rng(p)
+    ad, gm = np.empty((p, p)), np.empty(p)
+    fx, s1, s2 = np.empty(p, np.bool_), np.empty(p), np.empty(p)
+    for trial in range(40):
+        jt = rng.standard_normal((p, 32)) * 10.0 ** rng.uniform(-4, 2, (p, 1))
+        a = jt @ jt.T
+        a = np.tril(a) + np.tril(a, -1).T  # exactly symmetric, as _normal_eq makes it
+        g = rng.standard_normal(p)
+        x = np.where(rng.random(p) < 0.3, 0.0, rng.random(p))
+        fz = rng.random(p) < 0.15
+        d1 = (2, 3 if p % 3 == 0 else 4)[trial % 2]
+        for lam in (1e-12, 1e-3, 7.0):
+            pred1 = _kernel._damped_step(a, g, x, fz, lam, d1, ad, gm, fx, s1)
+            pred2, ok = unrolled(a, g, x, fz, lam, d1, fx, s2)
+            assert ok and pred1 == pred2 and np.array_equal(s1, s2)
+    a = np.diag(np.r_[-1.0, np.ones(p - 1)])  # not SPD: left to the generic LU path
+    assert not unrolled(a, np.ones(p), np.ones(p), np.zeros(p, np.bool_), 1e-3, 2, fx, s2)[1]
+
+
 def test_refine_batch_shape_errors():
     model = ob.Model(ob.Ring(30), 1e-2)
     data, x0 = np.zeros((3, 30)), np.zeros((3, 4))

@@ -36,6 +36,7 @@ from ..model import Model
 from ..sensitivity import Cosine, CosinePower
 from ._linalg_kernel import _solve_spd
 from ._model_kernel import _LAW_COSINE, _LAW_POWER, _residual
+from ._step_kernel import _step4, _step6, _step8
 
 __all__ = ["KINDS", "law_code", "lm_batch", "supports"]
 
@@ -112,17 +113,17 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
         fx[i] = fz[i]
     for i in range(d1 - 1, p, d1):  # intensities at the bound, gradient outwards
         fx[i] = fx[i] or (x[i] <= 0.0 and g[i] <= 0.0)
-    for i in range(p):
-        gm[i] = 0.0 if fx[i] else g[i]
-        for j in range(p):
-            ad[i, j] = a[i, j]
-        ad[i, i] += lam * max(a[i, i], floor)
-    for i in range(p):
+    for i in range(p):  # one pass: damped copy with fixed rows/columns cleared
         if fx[i]:
+            gm[i] = 0.0
             for j in range(p):
                 ad[i, j] = 0.0
-                ad[j, i] = 0.0
             ad[i, i] = 1.0
+        else:
+            gm[i] = g[i]
+            for j in range(p):
+                ad[i, j] = 0.0 if fx[j] else a[i, j]
+            ad[i, i] = a[i, i] + lam * max(a[i, i], floor)
     _solve_spd(ad, gm, step)
     pred = 0.0
     for i in range(p):
@@ -202,7 +203,15 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
     chi2_old = _residual(kind, law, p, nrm, pos, x, s, jt, r, True)
     _normal_eq(jt, r, a, g)
     for it in range(max_iter):
-        pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step)
+        pred, ok = 0.0, False  # unrolled for small P (same numbers), else generic
+        if x.size == 6:
+            pred, ok = _step6(a, g, x, fk, lam, d1, fx, step)
+        elif x.size == 8:
+            pred, ok = _step8(a, g, x, fk, lam, d1, fx, step)
+        elif x.size == 4:
+            pred, ok = _step4(a, g, x, fk, lam, d1, fx, step)
+        if not ok:
+            pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step)
         for i in range(x.size):
             xn[i] = x[i] + step[i]
         _project(kind, zfl, xn)
