@@ -6,9 +6,7 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    unit-intensity atoms: matching pursuit + alternating projection, and for
    K >= 2 the best K-tuple of each of ``n_coarse`` interleaved coarse subsets
    (exhaustive, :mod:`~olsbayes.ml.tuples`; 3 subsets, 24 from K = 4 on:
-   :func:`default_coarse`) + alternating projection, and runner-up atoms per
-   source where the kink hops (stage 4) do not cover them
-   (:func:`default_runners_up`).  Cost
+   :func:`default_coarse`) + alternating projection.  Cost
    O(T M N K^2) per sweep plus O(T C(M_c, K) K^2) with C(M_c, K) capped.
 2. :func:`~olsbayes.ml.batch.refine_batch` -- one joint bounded
    Levenberg–Marquardt run over all candidates of all trials at once (analytic
@@ -36,7 +34,7 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
 In stages 2-4 a run that comes within ``DEDUPE_TOL`` (max norm) of an optimum
 already found for its trial (the stage's base fit, or an earlier start's
 converged run) stops there: the starts of a trial mostly share one optimum
-(K = 3 with runner-ups: 10 candidates, 1.03 distinct optima per trial).  Measured on 3000 fits
+(K = 3: 10 candidates, 1.03 distinct optima per trial).  Measured on 3000 fits
 of each benchmark setting: no log-likelihood changed by more than 1e-12;
 evaluations per fit K = 3 197 -> 128, Fig. 3 98 -> 63.
 
@@ -53,7 +51,7 @@ from .batch import LMOutcome, refine_batch
 from .grid import atoms, grid_step
 from .search import grid_search
 
-__all__ = ["fit_fast", "restart_patterns", "hop_starts", "default_coarse", "default_runners_up"]
+__all__ = ["fit_fast", "restart_patterns", "hop_starts", "default_coarse"]
 
 #: Kink hops apply from this many sources on (K = 1 has the kink-triggered restarts).
 HOP_MIN_SOURCES = 2
@@ -83,22 +81,6 @@ def default_coarse(k: int) -> int:
     (two independent sets of 40 x 300 and 80 x 200 scenes) for 2.4x the time.
     """
     return COARSE_SETS[0] if k <= 3 else COARSE_SETS[1]
-
-
-def _hops_apply(model: Model, k: int) -> bool:
-    return model.kind == "angle" and model.sensitivity.kink and k >= HOP_MIN_SOURCES
-
-
-def default_runners_up(model: Model, k: int) -> int:
-    """Runner-up atoms per source added as search candidates (grid_search ``n_alt``).
-
-    None where the kink hops run and K <= 3: the hops reach the neighbouring
-    cells the runner-ups stood for (ring 30, sigma = 0.01 and Fig. 3 at 0.1:
-    0 of 34,000 K = 2, 3 fits worse without them, 21-29 % less time).  Two
-    elsewhere: without them 8 of 8,000 K = 1 ring fits, 3 of 8,000 K = 4 ring
-    fits and 1-2 % of sphere and plate fits (K = 1..3) ended worse.
-    """
-    return 0 if _hops_apply(model, k) and k <= 3 else 2
 
 
 def restart_patterns(k: int, d: int, n: int) -> np.ndarray:
@@ -224,7 +206,7 @@ def hop_starts(model: Model, x: np.ndarray) -> np.ndarray:
 def _kink_hops(model: Model, data: np.ndarray, out: LMOutcome, max_iter: int) -> LMOutcome:
     """One round of kink hops for every fit (angle models, kinked law, K >= 2)."""
     k = out.x.shape[1] // (model.n_loc + 1)
-    if not _hops_apply(model, k):
+    if model.kind != "angle" or not model.sensitivity.kink or k < HOP_MIN_SOURCES:
         return out
     from . import _fit_kernel  # numba is imported on first use
 
@@ -252,8 +234,7 @@ def fit_fast(
     k, d = n_sources, model.n_loc
     n_coarse = default_coarse(k) if n_coarse is None else n_coarse
     g = atoms(model, grid)
-    idx, inten, _ = grid_search(g, data, k, n_coarse=n_coarse,
-                                n_alt=default_runners_up(model, k))  # (T, C, K)
+    idx, inten, _ = grid_search(g, data, k, n_coarse=n_coarse)  # (T, C, K)
     starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
     out = _refine_starts(model, data, starts, max_iter)
     if n_restarts:
