@@ -262,3 +262,13 @@ def test_fit_and_crlb_on_sphere_and_plate(tmp_path, capsys, text, n_params):
     key = "position_std" if "plate" in text else "direction_std"
     assert np.asarray(bound[key]).shape == (n_params // (4 if "plate" in text else 3),
                                             3 if "plate" in text else 2)
+
+
+def test_fit_exact_method_ring_only(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(SPHERE_TOML)
+    code, _, err = run_cli(capsys, "fit", str(cfg), "--method", "exact")
+    assert_one_line_error(code, err)
+    assert "model.array must be a Ring" in err
+    code, out, _ = run_cli(capsys, "fit", "--method", "exact", "--json")
+    assert code == 0 and json.loads(out)["method"] == "exact"

@@ -393,3 +393,15 @@ def test_rank_statistics_are_uniform_for_an_exact_posterior():
     bad = np.array([ranks_of(np.array([m]), (yy / 2 + 0.35 * rng.normal(size=(N_DRAWS, 1))))
                     for m, yy in zip(mu, y)])[:, 0]
     assert rank_test(bad, N_DRAWS, 10, rng).p_value < 1e-3
+
+
+def test_exact_estimator_in_ring_studies():
+    from olsbayes.studies.estimators import parse_method, ring_estimate
+
+    assert parse_method("exact") == ("exact", 0)
+    with pytest.raises(InputError, match="'exact'"):
+        parse_method("exact_3")
+    settings = {"n_sensors": 30, "sigma": 1e-2, "n_sources": 2, "method": "exact"}
+    out = ring_estimate(settings, [np.random.default_rng(s) for s in range(3)])
+    assert np.all(np.asarray(out["converged"]))
+    assert np.all(np.asarray(out["ll_gain"]) >= -1e-9)  # the global optimum beats the truth

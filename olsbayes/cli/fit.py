@@ -51,8 +51,9 @@ def register(subparsers: Any) -> None:
                    help="readings (text/CSV/.npy, one row of N readings per measurement)")
     p.add_argument("--n-sources", type=int, default=None, metavar="K",
                    help="number of sources to fit (default: as many as in [scene])")
-    p.add_argument("--method", choices=("fast", "multistart"), default="fast",
-                   help="fast (polynomial-time, default) or multistart (the paper's baseline)")
+    p.add_argument("--method", choices=("fast", "multistart", "exact"), default="fast",
+                   help="fast (polynomial-time, default), multistart (the paper's baseline) "
+                        "or exact (global optimum by enumeration; ring, clipped cosine, K <= 4)")
     add_seed_arg(p, help="seed of the multistart starts, the sampler and a [data] simulation")
     p.add_argument("--posterior", action="store_true",
                    help="also sample the posterior with emcee, seeded at the ML point")

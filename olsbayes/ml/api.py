@@ -11,6 +11,7 @@ from ..crlb import SINGULAR_RTOL
 from ..errors import ConvergenceWarning, InputError
 from ..model import Model
 from .batch import LMOutcome
+from .exact import fit_exact
 from .fast import fit_fast
 from .grid import cached_default_grid, check_grid
 from .multistart import fit_multistart
@@ -19,7 +20,7 @@ from .result import MLResult
 __all__ = ["fit_ml", "METHODS"]
 
 #: Accepted values of ``method``.
-METHODS = ("fast", "multistart")
+METHODS = ("fast", "multistart", "exact")
 
 
 def _check(model: object, data: object, n_sources: object, method: object) -> tuple:
@@ -85,13 +86,20 @@ def fit_ml(
         Readings.  A 2-D array fits T independent data vectors in one vectorised call.
     n_sources : int
         Number K of sources, 1 <= K and K (d + 1) <= N.
-    method : {"fast", "multistart"}
+    method : {"fast", "multistart", "exact"}
         ``"fast"``: grid matching pursuit + alternating projection (polynomial in K),
         joint bounded Levenberg–Marquardt, ``n_restarts`` deterministic perturbed
         restarts and (ring/planar arrays, K >= 2) one round of kink hops into the
         neighbouring smooth cells of the likelihood; batched over trials.
         ``"multistart"``: the paper's baseline, ``n_starts`` pseudo-random starts
         each refined by L-BFGS-B.
+        ``"exact"``: the global optimum by enumerating the likelihood's linear
+        cells (:func:`olsbayes.ml.exact.fit_exact`); rings with the clipped
+        cosine and K <= 4 only.  On a 30-ring ~0.3 ms per fit at K = 2 (batched),
+        ~30 ms at K = 3, ~0.7 s at K = 4: for close pairs (Fig. 4, resolution
+        limits), where the fast search misses the global optimum in up to a third
+        of fits below one sensor spacing, and as a reference.  Its
+        ``n_evaluations`` counts the configurations solved.
     rng : Generator, int or None
         Randomness of the multistart starts.  ``"fast"`` is deterministic and
         ignores it.
@@ -140,11 +148,22 @@ def fit_ml(
             n_coarse = integer("n_coarse", n_coarse, low=0, high=64)
         out = fit_fast(model, s, k, g, n_restarts=n_restarts, restart_scale=restart_scale,
                        n_coarse=n_coarse, max_iter=it)
+    elif method == "exact":
+        out = _exact(model, s, k)
     else:
         n_starts = integer("n_starts", n_starts, low=1)
         it = 500 if max_iter is None else integer("max_iter", max_iter, low=1)
         out = fit_multistart(model, s, k, g, gen, n_starts=n_starts, max_iter=it)
     return _result(model, s, k, method, out, batch, warn)
+
+
+def _exact(model: Model, s: np.ndarray, k: int) -> LMOutcome:
+    """fit_exact as an LM outcome (converged by construction; evaluations = configurations)."""
+    ex = fit_exact(model, s, k)
+    t = s.shape[0]
+    chi2 = np.sum((s - model.response(ex.params)) ** 2, axis=-1)
+    return LMOutcome(ex.params, chi2, np.ones(t, dtype=bool),
+                     np.full(t, ex.n_configurations, dtype=np.int64), np.zeros(t, dtype=bool))
 
 
 def _result(

@@ -7,6 +7,7 @@
 ``"fast"``          :func:`olsbayes.ml.fit_ml` fast method, one fit per trial
 ``"fast_batched"``  the same, all trials of the chunk in one batched call
 ``"multistart_M"``  the paper's multistart baseline with M random starts
+``"exact"``         the global ML optimum by enumeration (clipped cosine, K <= 4)
 ``"posterior_L"``   posterior mean of an emcee run of exactly L steps
 ``"nested"``        posterior mean from dynesty (``maxcall`` cap, default 20000)
 ==================  ==========================================================
@@ -46,10 +47,11 @@ def parse_method(method: str) -> tuple[str, int]:
         return ("fast_batched" if num else "fast"), 0
     if name in ("multistart", "posterior") and num.isdigit() and int(num) > 0:
         return name, int(num)
-    if name == "nested" and not num:
+    if name in ("nested", "exact") and not num:
         return name, 0
     raise InputError(
-        "method must be 'fast', 'fast_batched', 'multistart_M', 'posterior_L' or 'nested' "
+        "method must be 'fast', 'fast_batched', 'multistart_M', 'exact', 'posterior_L' or "
+        "'nested' "
         f"(M, L positive integers); got {method!r}"
     )
 
@@ -119,8 +121,8 @@ def _one_fit(model: Model, data: np.ndarray, k: int, method: str, num: int, sett
              rng) -> tuple:
     from ..ml import fit_ml
 
-    if method == "fast":
-        r = fit_ml(model, data, k, "fast", warn=False)
+    if method in ("fast", "exact"):
+        r = fit_ml(model, data, k, method, warn=False)
         return r.params, bool(r.converged), int(r.n_evaluations)
     if method == "multistart":
         r = fit_ml(model, data, k, "multistart", rng=rng, n_starts=num, warn=False)
