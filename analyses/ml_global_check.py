@@ -54,18 +54,21 @@ def run_k(model: ob.Model, k: int, args: argparse.Namespace, seq: np.random.Seed
     for i in range(args.scenes):
         data = model.simulate(random_scene(rng, k, np.radians(args.min_sep)), rng,
                               size=args.draws)
-        for name, fit in (
+        fits = (
             ("exact", lambda: fit_exact(model, data, k)),
             ("fast", lambda: fit_ml(model, data, k)),
             ("multistart", lambda: fit_ml(model, data, k, method="multistart",
                                           rng=args.seed + 1000 * k + i, n_starts=20)),
-        ):
+        )
+        for name, fit in fits[: 2 if args.no_multistart else 3]:
             t0 = time.perf_counter()
             res = fit()
             times[name] += time.perf_counter() - t0
             rows[name].append(res.log_likelihood)
             if name == "exact":
                 rows["kink"].append(on_kink(model, res.params))
+    if args.no_multistart:
+        rows["multistart"] = [np.full(args.draws, np.nan)] * args.scenes
     out = {key: np.concatenate(v) for key, v in rows.items()}
     n = out["exact"].size
     return out, {key: 1e3 * v / n for key, v in times.items()}
@@ -77,9 +80,13 @@ def summary(k: int, ll: dict, ms: dict, tol: float) -> list[str]:
     cells = [f"{k:>2}", f"{n:>5}", f"{ll['kink'].mean():>6.3f}"]
     for name in ("fast", "multistart"):
         gap = ex - ll[name]
+        if np.isnan(gap).all():  # not run
+            cells += [f"{'-':>8}", f"{'-':>9}", f"{'-':>4}"]
+            continue
         cells += [f"{np.mean(gap <= tol):>8.4f}", f"{gap.max():>9.2e}",
                   f"{np.sum(gap < -1e-9):>4d}"]
-    cells += [f"{ms['exact']:>8.1f}", f"{ms['fast']:>7.1f}", f"{ms['multistart']:>7.1f}"]
+    cells += [f"{ms[name]:>8.1f}" if ms[name] else f"{'-':>8}"
+              for name in ("exact", "fast", "multistart")]
     return cells
 
 
@@ -93,18 +100,21 @@ def main() -> None:
     ap.add_argument("--min-sep", type=float, default=30.0, help="degrees")
     ap.add_argument("--tol", type=float, default=1e-6, help="log L tolerance")
     ap.add_argument("--seed", type=int, default=20261123)
+    ap.add_argument("--no-multistart", action="store_true", help="exact and fast only")
     ap.add_argument("--out", type=Path, default=Path("out") / "ml_global_check")
     args = ap.parse_args()
     model = ob.Model(ob.Ring(args.n), args.sigma)
-    head = (" K  draws    kink  fast_hit   fast_gap   >ex    ms_hit     ms_gap   >ex  "
-            "exact_ms  fast_ms    ms_ms")
+    names = ("K", "draws", "kink", "fast_hit", "fast_gap", ">ex", "ms_hit", "ms_gap", ">ex",
+             "exact_ms", "fast_ms", "ms_ms")
+    head = "  ".join(nm.rjust(w) for nm, w in zip(names, (2, 5, 6, 8, 9, 4, 8, 9, 4, 8, 8, 8)))
     lines = [f"Ring({args.n}), sigma={args.sigma}, {args.scenes} scenes x {args.draws} draws, "
              f"min sep {args.min_sep} deg, tol {args.tol} in log L; load "
              f"{os.getloadavg()[0]:.2f} at start", head]
     seqs = np.random.SeedSequence(args.seed).spawn(max(args.ks) + 1)
     for k in args.ks:  # warm-up: numba kernels load (or compile) outside the timings
         fit_ml(model, np.zeros(args.n), k)
-        fit_ml(model, np.zeros(args.n), k, method="multistart", rng=0, n_starts=2)
+        if not args.no_multistart:
+            fit_ml(model, np.zeros(args.n), k, method="multistart", rng=0, n_starts=2)
     for k in args.ks:
         ll, ms = run_k(model, k, args, seqs[k])
         lines.append("  ".join(summary(k, ll, ms, args.tol)))
