@@ -15,6 +15,7 @@ from .errors import (
     EvidenceWarning,
     InputError,
     KinkWarning,
+    MultimodalWarning,
     NullSpaceWarning,
     OlsBayesError,
     OlsBayesWarning,
@@ -83,4 +84,5 @@ __all__ = [
     "ConvergenceWarning",
     "EvidenceWarning",
     "NullSpaceWarning",
+    "MultimodalWarning",
 ]

@@ -18,6 +18,7 @@ __all__ = [
     "ConvergenceWarning",
     "EvidenceWarning",
     "NullSpaceWarning",
+    "MultimodalWarning",
 ]
 
 
@@ -55,3 +56,8 @@ class EvidenceWarning(OlsBayesWarning):
 
 class NullSpaceWarning(OlsBayesWarning):
     """An imaging problem whose design matrix has a large null space."""
+
+
+class MultimodalWarning(OlsBayesWarning):
+    """A distinct local optimum fits almost as well as the estimate: the likelihood is
+    multimodal there and Fisher (CRLB) errors understate the uncertainty."""

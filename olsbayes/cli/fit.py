@@ -107,6 +107,7 @@ def fit_payload(model: Model, result: Any, truth: Scene | None) -> dict[str, Any
         "std": result.std,
         "log_likelihood": result.log_likelihood,
         "converged": result.converged,
+        "rival_gap": result.rival_gap,
     }
     if truth is not None:
         x_true = model.canonical(model.pack(truth))

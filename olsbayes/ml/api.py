@@ -8,7 +8,7 @@ import numpy as np
 
 from .._validation import as_rng, integer, positive_float
 from ..crlb import SINGULAR_RTOL
-from ..errors import ConvergenceWarning, InputError
+from ..errors import ConvergenceWarning, InputError, MultimodalWarning
 from ..model import Model
 from .batch import LMOutcome
 from .exact import fit_exact
@@ -16,6 +16,7 @@ from .fast import fit_fast
 from .grid import cached_default_grid, check_grid
 from .multistart import fit_multistart
 from .result import MLResult
+from .rivals import DISTINCT_STD, RIVAL_WARN, rival_gap
 
 __all__ = ["fit_ml", "METHODS"]
 
@@ -120,7 +121,9 @@ def fit_ml(
     max_iter : int, optional
         Iteration cap of each local optimisation (default 300 for LM, 500 for L-BFGS-B).
     warn : bool
-        Warn :class:`~olsbayes.errors.ConvergenceWarning` when a fit did not converge.
+        Warn :class:`~olsbayes.errors.ConvergenceWarning` when a fit did not converge,
+        :class:`~olsbayes.errors.MultimodalWarning` when a distinct local optimum is
+        within 3 of a fit's log-likelihood (``MLResult.rival_gap``).
 
     Returns
     -------
@@ -182,6 +185,19 @@ def _result(
     else:
         ll = model.log_likelihood(x, s)
         cov = _covariances(model, x)
+    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    gap = rival_gap(model, x, out.chi2, out.alternatives, std)
+    if warn and np.any(gap < RIVAL_WARN):
+        bad = int(np.sum(gap < RIVAL_WARN))
+        warnings.warn(
+            f"{bad} of {gap.size} ML fit(s) ({method}) reached a distinct local optimum "
+            f"(sources > {DISTINCT_STD:g} Fisher std away) within {RIVAL_WARN:g} of the "
+            "estimate's log-likelihood: the likelihood is multimodal there and the Fisher "
+            "covariance understates the uncertainty; see MLResult.rival_gap, or sample the "
+            "posterior (olsbayes.posterior.sample)",
+            MultimodalWarning,
+            stacklevel=3,
+        )
     if warn and not np.all(out.converged):
         bad = int(np.sum(~out.converged))
         warnings.warn(
@@ -197,6 +213,7 @@ def _result(
         converged=sel(out.converged),
         n_evaluations=sel(out.n_evaluations),
         cov=sel(cov),
+        rival_gap=sel(gap),
         method=method,
         n_sources=k,
         model=model,

@@ -47,6 +47,8 @@ class LMOutcome:
     converged: np.ndarray  # (T,) bool
     n_evaluations: np.ndarray  # (T,) int
     stalled: np.ndarray | None = None  # (T,) bool, stopped with no descent step
+    # other optima the method reached per trial: x (T, C, P), chi2 (T, C) (inf: none)
+    alternatives: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _z_floor(model: Model) -> float:

@@ -26,7 +26,8 @@ def estimation_errors(model: Model, params: np.ndarray, truth: np.ndarray) -> np
     model : Model
     params : ndarray, shape (..., P)
         Estimates in the model's flat layout.
-    truth : ndarray, shape (P,)
+    truth : ndarray, shape (P,) or (..., P)
+        One truth, or one per estimate (leading axes broadcast against params').
 
     Returns
     -------
@@ -44,7 +45,7 @@ def estimation_errors(model: Model, params: np.ndarray, truth: np.ndarray) -> np
         )
     d1 = model.n_loc + 1
     e_blk = est.reshape(est.shape[:-1] + (k, d1))
-    t_blk = tru.reshape(k, d1)
+    t_blk = tru.reshape(tru.shape[:-1] + (k, d1))
     best_err, best_cost = None, None
     for perm in itertools.permutations(range(k)):
         err = e_blk[..., list(perm), :] - t_blk
@@ -57,4 +58,4 @@ def estimation_errors(model: Model, params: np.ndarray, truth: np.ndarray) -> np
             better = cost < best_cost
             best_err = np.where(better[..., None, None], err, best_err)
             best_cost = np.minimum(cost, best_cost)
-    return best_err.reshape(est.shape)
+    return best_err.reshape(np.broadcast_shapes(est.shape, tru.shape))

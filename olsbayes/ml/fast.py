@@ -43,6 +43,8 @@ Being deterministic, a batch fit equals a loop of single fits.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..geometry import wrap_angle
@@ -236,22 +238,24 @@ def fit_fast(
     g = atoms(model, grid)
     idx, inten, _ = grid_search(g, data, k, n_coarse=n_coarse)  # (T, C, K)
     starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
-    out = _refine_starts(model, data, starts, max_iter)
+    out = _refine_starts(model, data, starts, max_iter, keep=True)
+    found = out.alternatives  # the search candidates' optima (olsbayes.ml.rivals)
     if n_restarts:
         delta = restart_scale * grid_step(model, grid)
         out = _restart(model, data, out, delta, restart_patterns(k, d, n_restarts), max_iter)
     out = _kink_hops(model, data, out, max_iter)
-    return _kink_polish(model, data, out, max_iter)
+    return dataclasses.replace(_kink_polish(model, data, out, max_iter), alternatives=found)
 
 
 def _refine_starts(
     model: Model, data: np.ndarray, starts: np.ndarray, max_iter: int,
-    known: np.ndarray | None = None,
+    known: np.ndarray | None = None, keep: bool = False,
 ) -> LMOutcome:
     """One batched LM run over starts (T, C, K, d+1); the best chi^2 per trial wins.
 
     Runs reaching an optimum already found for their trial (``known`` (T, P),
     NaN rows: none, or an earlier start's) stop there (``DEDUPE_TOL``).
+    ``keep``: every converged run's optimum goes to ``alternatives``.
     """
     t, c = starts.shape[:2]
     if known is None:
@@ -261,5 +265,9 @@ def _refine_starts(
                         dedupe_tol=DEDUPE_TOL)
     pick = np.arange(t) * c + np.argmin(cand.chi2.reshape(t, c), axis=1)
     out = _take(cand, pick)
+    alt = None
+    if keep:
+        alt = (cand.x.reshape(t, c, -1),
+               np.where(cand.converged, cand.chi2, np.inf).reshape(t, c))
     return LMOutcome(out.x, out.chi2, out.converged,
-                     cand.n_evaluations.reshape(t, c).sum(axis=1), out.stalled)
+                     cand.n_evaluations.reshape(t, c).sum(axis=1), out.stalled, alt)

@@ -65,18 +65,24 @@ def _objective(model: Model, s: np.ndarray):
 
 def _fit_one(
     model: Model, s: np.ndarray, k: int, starts: np.ndarray, max_iter: int
-) -> tuple[np.ndarray, float, bool, int]:
+) -> tuple[np.ndarray, float, bool, int, np.ndarray, np.ndarray]:
+    """Best of the starts: x, chi^2, converged, evaluations, and every start's optimum
+    (x (M, P), chi^2 (M,), inf where the start did not converge)."""
     fun, bounds = _objective(model, s), _bounds(model, k)
     best, nev = None, 0
-    for x0 in starts:
+    xs, chi2s = np.empty((len(starts), model.n_params(k))), np.empty(len(starts))
+    for j, x0 in enumerate(starts):
         res = minimize(
             fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
             options={"maxiter": max_iter, "ftol": 1e-13, "gtol": 1e-9},
         )
         nev += 2 * int(res.nfev)
+        xs[j] = res.x
+        chi2s[j] = 2.0 * model.sigma**2 * float(res.fun) if _converged(model, res) else np.inf
         if best is None or res.fun < best.fun:
             best = res
-    return best.x, 2.0 * model.sigma**2 * float(best.fun), _converged(model, best), nev
+    chi2 = 2.0 * model.sigma**2 * float(best.fun)
+    return best.x, chi2, _converged(model, best), nev, xs, chi2s
 
 
 def _converged(model: Model, res) -> bool:
@@ -114,7 +120,10 @@ def fit_multistart(
     t, p = data.shape[0], model.n_params(n_sources)
     x, chi2 = np.empty((t, p)), np.empty(t)
     conv, nev = np.empty(t, bool), np.empty(t, np.int64)
+    alt_x, alt_chi2 = np.empty((t, n_starts, p)), np.empty((t, n_starts))
     for i in range(t):
         starts = random_starts(model, data[i], n_sources, n_starts, grid, rng)
-        x[i], chi2[i], conv[i], nev[i] = _fit_one(model, data[i], n_sources, starts, max_iter)
-    return LMOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev)
+        x[i], chi2[i], conv[i], nev[i], alt_x[i], alt_chi2[i] = _fit_one(
+            model, data[i], n_sources, starts, max_iter)
+    return LMOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev,
+                     alternatives=(alt_x, alt_chi2))

@@ -39,6 +39,13 @@ class MLResult:
     cov : ndarray, shape (P, P) or (T, P, P)
         Inverse Fisher information at the estimate (the CRLB evaluated at the
         estimate), rows/columns of unidentifiable parameters set to inf.
+    rival_gap : ndarray, shape () or (T,)
+        Log-likelihood of the estimate minus that of the best *distinct* local
+        optimum the method's starts reached (source locations more than 3 Fisher
+        std apart; :mod:`olsbayes.ml.rivals`): small values (< 3 warns
+        :class:`~olsbayes.errors.MultimodalWarning`) mean a rival mode, where
+        ``cov`` understates the uncertainty.  inf: no distinct optimum reached
+        (not a proof that none exists); NaN: not assessed (``"exact"``, K > 6).
     method : str
         ``"fast"`` or ``"multistart"``.
     n_sources : int
@@ -52,12 +59,14 @@ class MLResult:
     converged: np.ndarray
     n_evaluations: np.ndarray
     cov: np.ndarray
+    rival_gap: np.ndarray
     method: str
     n_sources: int
     model: Model = field(repr=False)
 
     def __post_init__(self) -> None:
-        for name in ("params", "log_likelihood", "converged", "n_evaluations", "cov"):
+        for name in ("params", "log_likelihood", "converged", "n_evaluations", "cov",
+                     "rival_gap"):
             arr = np.array(getattr(self, name))
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)

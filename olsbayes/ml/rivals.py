@@ -1,0 +1,93 @@
+"""Distinct local optima that fit almost as well as an ML estimate (multimodality).
+
+The fast search refines many candidate starts and the multistart baseline many
+random ones; besides the winner they reach other local optima.  One whose
+source locations differ from the estimate's by more than :data:`DISTINCT_STD`
+Fisher standard deviations (after matching sources) and whose log-likelihood is
+within a few units of the estimate's is a rival mode: the likelihood is
+multimodal there, the ML estimate may jump between the modes from one noise
+draw to the next, and the Fisher covariance (the local CRLB) understates the
+uncertainty.  Measured on random well-separated K = 4 scenes on a 30-ring at
+sigma = 0.01 (2800 fits): every fit more than 5 CRLB std from the truth had a
+rival within 3 log-likelihood units (81 % within 1); 7.7 % of the other fits
+had one too.  A rival found is a real local optimum; none found does not prove
+there is none (the search reports what its starts reached).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import wrap_angle
+from ..model import Model
+from .evaluate import estimation_errors
+
+__all__ = ["rival_gap", "DISTINCT_STD", "RIVAL_WARN", "RIVAL_RANGE"]
+
+#: A location differing by more than this many Fisher std makes an optimum distinct.
+DISTINCT_STD = 3.0
+
+#: fit_ml warns (MultimodalWarning) when a rival is within this log-likelihood.
+RIVAL_WARN = 3.0
+
+#: Matching sources is exhaustive over K! permutations: assessed up to this K.
+MAX_SOURCES = 6
+
+#: Optima further below the estimate than this (log-likelihood units) are ignored.
+RIVAL_RANGE = 20.0
+
+
+def rival_gap(
+    model: Model, x: np.ndarray, chi2: np.ndarray, alternatives: tuple | None,
+    std: np.ndarray,
+) -> np.ndarray:
+    """Log-likelihood of each estimate minus that of its best distinct rival optimum.
+
+    Parameters
+    ----------
+    model : Model
+    x : ndarray, shape (T, P)
+        Estimates, canonical order.
+    chi2 : ndarray, shape (T,)
+        Their residual sums of squares.
+    alternatives : (ndarray (T, C, P), ndarray (T, C)) or None
+        Other optima reached per trial and their residual sums of squares (inf:
+        no optimum in that slot).  None: not assessed.
+    std : ndarray, shape (T, P)
+        Fisher standard deviations at the estimates (inf: unidentified).
+
+    Returns
+    -------
+    ndarray, shape (T,)
+        >= 0; inf where no distinct optimum was reached within
+        :data:`RIVAL_RANGE`, NaN where not assessed (no alternatives, or K >
+        :data:`MAX_SOURCES`).
+    """
+    t = x.shape[0]
+    if alternatives is None or model.n_sources_of(x) > MAX_SOURCES:
+        return np.full(t, np.nan)
+    alt_x, alt_chi2 = alternatives
+    gap = (alt_chi2 - chi2[:, None]) / (2.0 * model.sigma**2)  # (T, C)
+    rows, cols = np.nonzero(np.isfinite(gap) & (gap < RIVAL_RANGE))
+    cand = model.canonical(alt_x[rows, cols])
+    d1 = model.n_loc + 1
+    loc = np.ones(x.shape[1], dtype=bool)
+    loc[d1 - 1 :: d1] = False  # intensities are linear given the locations
+    # most starts reach the estimate itself: those within the threshold in canonical
+    # order are not distinct under that labelling; only the rest need matching
+    keep = np.any(np.abs(_diff(model, cand, x[rows])[:, loc])
+                  > DISTINCT_STD * std[rows][:, loc], axis=-1)
+    rows, cols, cand = rows[keep], cols[keep], cand[keep]
+    err = estimation_errors(model, cand, x[rows])  # (n, P)
+    distinct = np.any(np.abs(err[:, loc]) > DISTINCT_STD * std[rows][:, loc], axis=-1)
+    out = np.full(t, np.inf)
+    np.minimum.at(out, rows[distinct], gap[rows[distinct], cols[distinct]])
+    return np.maximum(out, 0.0)
+
+
+def _diff(model: Model, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a - b in the flat layout, the first location coordinate wrapped for angles."""
+    d = a - b
+    if model.kind != "position":
+        d[:, 0 :: model.n_loc + 1] = wrap_angle(d[:, 0 :: model.n_loc + 1])
+    return d
