@@ -44,7 +44,7 @@ def measure(n: int, sigma: float, trials: int, rng: np.random.Generator) -> list
     truth = model.canonical(model.pack(scene))  # sorted by wrapped angle
     data = model.simulate(scene, rng, size=trials)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ob.ConvergenceWarning)
+        warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
         res = fit_ml(model, data, 2)
     err = estimation_errors(model, res.params, truth)
     rms = np.sqrt(np.mean(err**2, axis=0)).reshape(2, 2)

@@ -51,7 +51,7 @@ def measure(sep: float, trials: int, rng: np.random.Generator) -> dict:
     truth = model.canonical(model.pack(scene))
     data = model.simulate(scene, rng, size=trials)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ob.ConvergenceWarning)
+        warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
         res = fit_ml(model, data, 2)
     ex = fit_ml(model, data, 2, method="exact")
     err = estimation_errors(model, res.params, truth)

@@ -129,7 +129,7 @@ def run_setting(name, sigma, scene, n_trials, n_ms, rng):
     fit_ml(model, data[:2], k)  # warm the tuple-search plan cache for every method alike
     out = {}
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ob.ConvergenceWarning)
+        warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
         ms_rng = np.random.default_rng(rng.integers(2**63))
         out.update(_timed_pair(
             lambda s: fit_ml(model, s, k),
@@ -219,7 +219,7 @@ def efficiency_only(n_trials: int, seed: int) -> None:
             std = ob.crlb(model, scene.sorted()).std
         data = model.simulate(scene, rng, size=n_trials)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ob.ConvergenceWarning)
+            warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
             res = fit_ml(model, data, scene.n_sources)
         err = estimation_errors(model, res.params, truth)
         eff = std**2 / np.mean(err**2, axis=0)
@@ -337,7 +337,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.scenes:
         print("\nrandom scenes (ring 30, separation >= 30 deg, I ~ U(0.5, 1)):")
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ob.ConvergenceWarning)
+            warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
             warnings.simplefilter("ignore", ob.KinkWarning)
             for sigma in (1e-2, 1e-3):
                 for k in (2, 3, 4):
