@@ -353,3 +353,33 @@ def test_rival_gap_reports_rival_modes_and_warns():
     assert np.all(np.isnan(fit_ml(model, data[:2], 4, method="exact").rival_gap))
     multi = fit_ml(model, data[:1], 4, method="multistart", rng=3, n_starts=8, warn=False)
     assert not np.isnan(multi.rival_gap)
+
+
+def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum(monkeypatch):
+    """K = 2 ring fits with the sources < 4 spacings apart or one intensity ~0 are refitted
+    by enumeration: the fast result is then the global optimum; Fig. 3's pair is not
+    touched (same fit with the escalation switched off)."""
+    import olsbayes.ml.pairs as pairs
+
+    model = ob.Model(ob.Ring(30), 1e-4)
+    rng = np.random.default_rng(43)
+    h = 2 * np.pi / 30
+    for sep, i2 in ((0.4, 0.9), (0.8, 0.6), (1.3, 1.0), (3.0, 0.7)):
+        scene = ob.Scene(directions=[-1.0, -1.0 + sep * h], intensities=[1.0, i2])
+        data = model.simulate(scene, rng, size=8)
+        fast = fit_ml(model, data, 2, warn=False)
+        ex = fit_ml(model, data, 2, method="exact")
+        np.testing.assert_allclose(fast.log_likelihood, ex.log_likelihood, rtol=0, atol=1e-6)
+    lone = model.simulate(ob.Scene(directions=[0.3], intensities=[1.0]), rng, size=4)
+    over = fit_ml(model, lone, 2, warn=False)  # a surplus source switched off: escalated
+    np.testing.assert_allclose(over.log_likelihood,
+                               fit_ml(model, lone, 2, method="exact").log_likelihood,
+                               rtol=0, atol=1e-6)
+    fig3 = ob.Model(ob.Ring(30), 1e-2)
+    data = fig3.simulate(ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2]),
+                         rng, size=20)
+    on = fit_ml(fig3, data, 2)
+    monkeypatch.setattr(pairs, "CLOSE_SPACINGS", 0.0)
+    monkeypatch.setattr(pairs, "WEAK_RATIO", -1.0)
+    off = fit_ml(fig3, data, 2)
+    np.testing.assert_array_equal(on.params, off.params)

@@ -30,6 +30,8 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    in one; none after one round of hops).
 5. Fits that end with a source on a kink are polished with that source's
    location held fixed (LM's one-sided Jacobian stalls there otherwise).
+6. K = 2 on a ring with the clipped cosine: close or lopsided pairs are refitted
+   by exact enumeration (:mod:`~olsbayes.ml.pairs`).
 
 In stages 2-4 a run that comes within ``DEDUPE_TOL`` (max norm) of an optimum
 already found for its trial (the stage's base fit, or an earlier start's
@@ -51,6 +53,7 @@ from ..geometry import wrap_angle
 from ..model import Model
 from .batch import LMOutcome, refine_batch
 from .grid import atoms, grid_step
+from .pairs import exact_pairs
 from .search import grid_search
 
 __all__ = ["fit_fast", "restart_patterns", "hop_starts", "default_coarse"]
@@ -244,7 +247,8 @@ def fit_fast(
         delta = restart_scale * grid_step(model, grid)
         out = _restart(model, data, out, delta, restart_patterns(k, d, n_restarts), max_iter)
     out = _kink_hops(model, data, out, max_iter)
-    return dataclasses.replace(_kink_polish(model, data, out, max_iter), alternatives=found)
+    out = dataclasses.replace(_kink_polish(model, data, out, max_iter), alternatives=found)
+    return exact_pairs(model, data, out)
 
 
 def _refine_starts(
