@@ -8,8 +8,9 @@ is trusted, importance sampling over the source locations where it is not --
 singular Fisher matrix, split or weak sources; K = 0, 1, 2, uniform intensity
 prior U(0, 2), ties broken towards the smaller K) and the K = 2 ML fit is kept.
 The ML fits inside select_k are the global optimum (``fit_ml(method="exact")``;
-``--fit-method fast`` for the default search, which below ~1.5 spacings misses
-the global K = 2 optimum in up to a third of fits).
+``--fit-method fast`` for the default method, which since it refits close and
+lopsided K = 2 pairs exactly gives the same fits; its search alone had missed
+the global K = 2 optimum in up to a third of fits below one spacing).
 Per separation:
 
 * P(K = 2 selected) and the median Bayes factor log Z2 - log Z1 (nats);

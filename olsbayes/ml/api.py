@@ -97,10 +97,10 @@ def fit_ml(
         ``"exact"``: the global optimum by enumerating the likelihood's linear
         cells (:func:`olsbayes.ml.exact.fit_exact`); rings with the clipped
         cosine and K <= 4 only.  On a 30-ring ~0.3 ms per fit at K = 2 (batched),
-        ~30 ms at K = 3, ~0.7 s at K = 4: for close pairs (Fig. 4, resolution
-        limits), where the fast search misses the global optimum in up to a third
-        of fits below one sensor spacing, and as a reference.  Its
-        ``n_evaluations`` counts the configurations solved.
+        ~30 ms at K = 3, ~0.7 s at K = 4: a reference, and for close sources at
+        K = 3, 4 (at K = 2 the fast method already refits close or lopsided pairs
+        this way, :mod:`olsbayes.ml.pairs`).  Its ``n_evaluations`` counts the
+        configurations solved.
     rng : Generator, int or None
         Randomness of the multistart starts.  ``"fast"`` is deterministic and
         ignores it.
