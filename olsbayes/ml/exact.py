@@ -45,14 +45,14 @@ re-solved by ``lstsq`` and scored by ``model.log_likelihood`` directly.
 Cost.  sum_{a + q <= K} C(M, a) C(M, q) = sum_{k <= K} C(2M, k)
 configurations of a arcs and q pins, M = N crossings on an even ring, 2N on an
 odd one: Ring(30) K = 3 36k, K = 4 524k; Ring(31) K = 3 318k, K = 4 9.7M.  The
-Gram blocks are look-ups in one table of the states' inner products, the LDL^T
-factorisations are numpy-vectorised over chunks of configurations and shared by
-all data vectors of a batch.
+Gram matrices are look-ups in one table of the states' inner products; the scan
+runs compiled (:mod:`._exact_kernel`, ~130 ns per configuration and data
+vector at K = 4), with a numpy reference (:mod:`._exact_numpy`, vectorised over
+chunks of configurations) that returns the same.
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,7 +66,7 @@ from ..sensitivity import Cosine, CosinePower
 
 __all__ = ["ExactResult", "fit_exact", "crossing_angles", "MAX_SOURCES", "RANK_RTOL"]
 
-#: Largest K accepted (K = 4 on an odd 31-ring: ~9.7M configurations, ~13 s).
+#: Largest K accepted (K = 4 on an odd 31-ring: ~9.7M configurations, ~1.3 s).
 MAX_SOURCES = 4
 #: Relative LDL^T pivot below which a configuration counts as rank-deficient.
 RANK_RTOL = 1e-10
@@ -78,8 +78,6 @@ RERANK_RTOL = 1e-10
 _MAX_CANDIDATES = 64
 #: Merge tolerance (rad) of coincident crossing angles.
 MERGE_TOL = 1e-9
-#: Configurations x data vectors x parameters per chunk (~16 MiB of float64).
-_CHUNK_TERMS = 1 << 21
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,139 +185,18 @@ def _check(model: object, data: object, n_sources: object) -> tuple[np.ndarray, 
     return (arr if arr.ndim == 2 else arr[None, :]), k
 
 
-def _combinations(n: int, r: int) -> np.ndarray:
-    """All r-subsets of range(n) as rows, shape (C(n, r), r), int64."""
-    if r == 0:
-        return np.zeros((1, 0), dtype=np.int64)
-    flat = itertools.chain.from_iterable(itertools.combinations(range(n), r))
-    return np.fromiter(flat, dtype=np.int64).reshape(-1, r)
-
-
-def _ldl(g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Batched LDL^T of Gram matrices with a rank test.
-
-    Parameters
-    ----------
-    g : ndarray, shape (C, p, p)
-        Symmetric positive semi-definite matrices.
-
-    Returns
-    -------
-    low : ndarray, shape (C, p, p)
-        Unit lower-triangular factors (strict lower part used).
-    piv : ndarray, shape (C, p)
-        Pivots D (set to 1 where rank-deficient).
-    ok : ndarray of bool, shape (C,)
-        Full rank: every pivot above :data:`RANK_RTOL` times its diagonal entry.
-    """
-    n, p = g.shape[:2]
-    low = np.zeros_like(g)
-    piv = np.empty((n, p))
-    ok = np.ones(n, dtype=bool)
-    for j in range(p):
-        w = low[:, j, :j] * piv[:, :j]  # L_jk D_k
-        dj = g[:, j, j] - np.einsum("ck,ck->c", w, low[:, j, :j])
-        bad = dj <= RANK_RTOL * g[:, j, j]
-        ok &= ~bad
-        piv[:, j] = np.where(bad, 1.0, dj)
-        if j + 1 < p:
-            num = g[:, j + 1 :, j] - np.einsum("cik,ck->ci", low[:, j + 1 :, :j], w)
-            low[:, j + 1 :, j] = num / piv[:, j, None]
-    return low, piv, ok
-
-
-def _solve(low: np.ndarray, piv: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """LS solutions x (T, C, p) and explained sums b^T G^-1 b (T, C) for b (T, C, p)."""
-    p = piv.shape[1]
-    z = np.empty_like(b)
-    for i in range(p):
-        z[..., i] = b[..., i] - np.einsum("ck,tck->tc", low[:, i, :i], z[..., :i])
-    explained = np.einsum("tcp,tcp->tc", z * z, np.broadcast_to(1.0 / piv, z.shape))
-    x = z / piv
-    for i in range(p - 2, -1, -1):
-        x[..., i] -= np.einsum("ck,tck->tc", low[:, i + 1 :, i], x[..., i + 1 :])
-    return x, explained
-
-
-def _feasible(x: np.ndarray, arcs: np.ndarray, units: np.ndarray) -> np.ndarray:
-    """Whether each LS solution x (T, C, p) lies in its cell; arcs (C, a) arc indices."""
-    a = arcs.shape[1]
-    scale = FEAS_RTOL * np.max(np.abs(x), axis=-1, initial=0.0)  # (T, C)
-    ok = np.all(x[..., 2 * a :] >= -scale[..., None], axis=-1)
-    m = units.shape[0]
-    for r in range(a):
-        px, py = x[..., 2 * r], x[..., 2 * r + 1]
-        u0, u1 = units[arcs[:, r]], units[(arcs[:, r] + 1) % m]
-        ok &= u0[:, 0] * py - u0[:, 1] * px >= -scale
-        ok &= px * u1[:, 1] - py * u1[:, 0] >= -scale
-    return ok
-
-
-@dataclass
-class _Best:
-    """Running best configurations per data vector (internal, mutable).
-
-    ``cands[t]`` holds every feasible (gain, arcs, pins) within ``margin[t]`` of
-    the best gain b^T G^-1 b (chi^2 = s.s - gain): the normal equations rank
-    configurations only to ~eps cond(G) s.s, so near-ties are re-ranked on
-    direct residuals at the end.
-    """
-
-    gain: np.ndarray  # (T,)
-    margin: np.ndarray  # (T,)
-    cands: list  # (T,) lists of (gain, arcs, pins)
-    n_feasible: np.ndarray  # (T,)
-
-    def offer(self, t: int, gain: np.ndarray, arcs: np.ndarray, pins: np.ndarray) -> None:
-        """Add trial t's feasible configurations (gains (C,)) that are near-best."""
-        top = max(self.gain[t], float(gain.max(initial=-np.inf)))
-        if top > self.gain[t]:
-            self.gain[t] = top
-            self.cands[t] = [c for c in self.cands[t] if c[0] >= top - self.margin[t]]
-        for i in np.flatnonzero(gain >= top - self.margin[t]):
-            self.cands[t].append((gain[i], arcs[i], pins[i]))
-        if len(self.cands[t]) > _MAX_CANDIDATES:  # e.g. all-zero data: everything ties
-            self.cands[t].sort(key=lambda cand: -cand[0])
-            del self.cands[t][_MAX_CANDIDATES:]
-
-
-def _scan_group(gram: np.ndarray, b: np.ndarray, best: _Best, units: np.ndarray,
-                a: int, q: int) -> int:
-    """Enumerate the configurations of a arcs and q pins, offer them to ``best``.
-
-    gram (3M, 3M) and b (T, 3M): the states' Gram table and A^T s; units (M, 2)
-    the crossing directions.  Returns the number of configurations.
-    """
-    m = units.shape[0]
-    arc_sets, pin_sets = _combinations(m, a), _combinations(m, q)
-    n_total, n_pin = arc_sets.shape[0] * pin_sets.shape[0], pin_sets.shape[0]
-    p, n_t = 2 * a + q, b.shape[0]
-    step = max(64, _CHUNK_TERMS // (p * max(p, n_t)))
-    for start in range(0, n_total, step):
-        flat = np.arange(start, min(start + step, n_total))
-        arcs, pins = arc_sets[flat // n_pin], pin_sets[flat % n_pin]
-        idx = np.concatenate([np.stack([2 * arcs, 2 * arcs + 1], -1).reshape(len(flat), 2 * a),
-                              2 * m + pins], axis=1)
-        low, piv, ok = _ldl(gram[idx[:, :, None], idx[:, None, :]])
-        arcs, pins, idx, low, piv = arcs[ok], pins[ok], idx[ok], low[ok], piv[ok]
-        x, gain = _solve(low, piv, b[:, idx])
-        feas = _feasible(x, arcs, units)
-        best.n_feasible += feas.sum(axis=1)
-        for t in range(n_t):
-            best.offer(t, gain[t, feas[t]], arcs[feas[t]], pins[feas[t]])
-    return n_total
-
-
 def _best_params(model: Model, c: np.ndarray, cols: np.ndarray, s: np.ndarray,
-                 cands: list, k: int) -> np.ndarray:
+                 states: np.ndarray) -> np.ndarray:
     """Flat parameters (2K,) of the candidate with the largest direct log L.
 
-    Each candidate's LS problem is re-solved by ``lstsq`` (no squared condition
-    number) and scored with ``model.log_likelihood`` on the data vector s (N,).
+    ``states`` (n, K): candidate configurations (arc j -> j, pin j -> M + j,
+    absent -> -1).  Each LS problem is re-solved by ``lstsq`` (no squared
+    condition number) and scored with ``model.log_likelihood`` on s (N,).
     """
+    m, k = c.size, states.shape[1]
     best_x, best_ll = np.zeros(2 * k), float(model.log_likelihood(np.zeros(2 * k), s))
-    m = c.size
-    for _, arcs, pins in cands:
+    for st in states:
+        arcs, pins = st[(st >= 0) & (st < m)], st[st >= m] - m
         idx = np.concatenate([np.stack([2 * arcs, 2 * arcs + 1], -1).ravel(), 2 * m + pins])
         sol = np.linalg.lstsq(cols[:, idx], s, rcond=None)[0]
         x = _params(c, arcs, pins, sol, k)
@@ -362,8 +239,8 @@ def fit_exact(model: Model, data: np.ndarray, n_sources: int) -> ExactResult:
     n_sources : int
         Number K of sources, 1 <= K <= :data:`MAX_SOURCES` (and 2K <= N).
         The cost grows like (2M)^K / K! configurations (M crossings): K = 3
-        on a 30-ring 36k (~30 ms), K = 4 524k (~0.7 s), K = 4 on an odd
-        31-ring 9.7M (~13 s per data vector).
+        on a 30-ring 36k (~4 ms per data vector), K = 4 524k (~70 ms), K = 4
+        on an odd 31-ring 9.7M (~1.3 s).
 
     Returns
     -------
@@ -376,21 +253,18 @@ def fit_exact(model: Model, data: np.ndarray, n_sources: int) -> ExactResult:
         A model other than a ring with the clipped cosine, bad data or n_sources.
     """
     s, k = _check(model, data, n_sources)
+    from . import _exact_kernel  # numba is imported on first use, not with the package
+
     c, cols = _design(model)
-    n_t = s.shape[0]
-    gram, b = cols.T @ cols, s @ cols  # (3M, 3M), (T, 3M)
-    margin = RERANK_RTOL * np.einsum("tn,tn->t", s, s)
-    best = _Best(gain=np.zeros(n_t), margin=margin, cands=[[] for _ in range(n_t)],
-                 n_feasible=np.ones(n_t, dtype=np.int64))
     units = np.column_stack([np.cos(c), np.sin(c)])
-    n_conf = 1  # the empty configuration (all sources absent)
-    for a in range(k + 1):
-        for q in range(1 if a == 0 else 0, k - a + 1):
-            n_conf += _scan_group(gram, b, best, units, a, q)
-    x = np.array([_best_params(model, c, cols, s[t], best.cands[t], k) for t in range(n_t)])
+    margin = RERANK_RTOL * np.einsum("tn,tn->t", s, s)
+    _, cstate, count, n_feas, n_conf = _exact_kernel.scan(
+        cols.T @ cols, s @ cols, units, k, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES)
+    x = np.array([_best_params(model, c, cols, s[t], cstate[t, : count[t]])
+                  for t in range(s.shape[0])])
     x = model.canonical(x)
     ll = model.log_likelihood(x, s)
     batch = np.ndim(data) == 2
     sel = (lambda v: v) if batch else (lambda v: v[0])
-    return ExactResult(params=sel(x), log_likelihood=sel(ll), n_configurations=n_conf,
-                       n_feasible=sel(best.n_feasible), n_sources=k, model=model)
+    return ExactResult(params=sel(x), log_likelihood=sel(ll), n_configurations=int(n_conf),
+                       n_feasible=sel(n_feas), n_sources=k, model=model)
