@@ -36,6 +36,10 @@ MAX_SOURCES = 6
 #: Optima further below the estimate than this (log-likelihood units) are ignored.
 RIVAL_RANGE = 20.0
 
+#: Optima within this (log-likelihood units) of the estimate count as the estimate:
+#: an exact tie with a distinct optimum is a null event under noise.
+TIE = 1e-5
+
 
 def rival_gap(
     model: Model, x: np.ndarray, chi2: np.ndarray, alternatives: tuple | None,
@@ -68,7 +72,12 @@ def rival_gap(
         return np.full(t, np.nan)
     alt_x, alt_chi2 = alternatives
     gap = (alt_chi2 - chi2[:, None]) / (2.0 * model.sigma**2)  # (T, C)
-    rows, cols = np.nonzero(np.isfinite(gap) & (gap < RIVAL_RANGE))
+    out = np.full(t, np.inf)
+    # inf and NaN compare False; a gap below TIE is the estimate itself (a start that
+    # converged to it, or stopped within the dedupe distance of it)
+    rows, cols = np.nonzero((gap > TIE) & (gap < RIVAL_RANGE))
+    if rows.size == 0:
+        return out
     cand = model.canonical(alt_x[rows, cols])
     d1 = model.n_loc + 1
     loc = np.ones(x.shape[1], dtype=bool)
@@ -77,10 +86,11 @@ def rival_gap(
     # order are not distinct under that labelling; only the rest need matching
     keep = np.any(np.abs(_diff(model, cand, x[rows])[:, loc])
                   > DISTINCT_STD * std[rows][:, loc], axis=-1)
+    if not keep.any():
+        return out
     rows, cols, cand = rows[keep], cols[keep], cand[keep]
     err = estimation_errors(model, cand, x[rows])  # (n, P)
     distinct = np.any(np.abs(err[:, loc]) > DISTINCT_STD * std[rows][:, loc], axis=-1)
-    out = np.full(t, np.inf)
     np.minimum.at(out, rows[distinct], gap[rows[distinct], cols[distinct]])
     return np.maximum(out, 0.0)
 
