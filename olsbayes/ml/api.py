@@ -97,7 +97,7 @@ def fit_ml(
         ``"exact"``: the global optimum by enumerating the likelihood's linear
         cells (:func:`olsbayes.ml.exact.fit_exact`); rings with the clipped
         cosine and K <= 4 only.  On a 30-ring ~0.3 ms per fit at K = 2 (batched),
-        ~30 ms at K = 3, ~0.7 s at K = 4: a reference, and for close sources at
+        ~4 ms at K = 3, ~70 ms at K = 4: a reference, and for close sources at
         K = 3, 4 (at K = 2 the fast method already refits close or lopsided pairs
         this way, :mod:`olsbayes.ml.pairs`).  Its ``n_evaluations`` counts the
         configurations solved.
