@@ -356,9 +356,9 @@ def test_rival_gap_reports_rival_modes_and_warns():
 
 
 def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum(monkeypatch):
-    """K = 2 ring fits with the sources < 4 spacings apart or one intensity ~0 are refitted
-    by enumeration: the fast result is then the global optimum; Fig. 3's pair is not
-    touched (same fit with the escalation switched off)."""
+    """K = 2, 3 ring fits with two sources < 4 spacings apart or an intensity ~0 are
+    refitted by enumeration: the fast result is then the global optimum; Fig. 3's pair is
+    not touched (same fit with the escalation switched off)."""
     import olsbayes.ml.pairs as pairs
 
     model = ob.Model(ob.Ring(30), 1e-4)
@@ -370,6 +370,12 @@ def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum(monke
         fast = fit_ml(model, data, 2, warn=False)
         ex = fit_ml(model, data, 2, method="exact")
         np.testing.assert_allclose(fast.log_likelihood, ex.log_likelihood, rtol=0, atol=1e-6)
+    for sep in (0.5, 1.0):  # K = 3: a close pair and a third source across the ring
+        scene = ob.Scene(directions=[0.2, 0.2 + sep * h, 0.2 + 2.8], intensities=[1.0, 0.7, 0.8])
+        data = model.simulate(scene, rng, size=6)
+        np.testing.assert_allclose(fit_ml(model, data, 3, warn=False).log_likelihood,
+                                   fit_ml(model, data, 3, method="exact").log_likelihood,
+                                   rtol=0, atol=1e-6)
     lone = model.simulate(ob.Scene(directions=[0.3], intensities=[1.0]), rng, size=4)
     over = fit_ml(model, lone, 2, warn=False)  # a surplus source switched off: escalated
     np.testing.assert_allclose(over.log_likelihood,

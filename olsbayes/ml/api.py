@@ -98,9 +98,9 @@ def fit_ml(
         cells (:func:`olsbayes.ml.exact.fit_exact`); rings with the clipped
         cosine and K <= 4 only.  On a 30-ring ~0.3 ms per fit at K = 2 (batched),
         ~4 ms at K = 3, ~70 ms at K = 4: a reference, and for close sources at
-        K = 3, 4 (at K = 2 the fast method already refits close or lopsided pairs
-        this way, :mod:`olsbayes.ml.pairs`).  Its ``n_evaluations`` counts the
-        configurations solved.
+        K = 4 (at K = 2, 3 the fast method already refits fits with close or
+        lopsided sources this way, :mod:`olsbayes.ml.pairs`).  Its
+        ``n_evaluations`` counts the configurations solved.
     rng : Generator, int or None
         Randomness of the multistart starts.  ``"fast"`` is deterministic and
         ignores it.

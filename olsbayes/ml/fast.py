@@ -30,8 +30,8 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    in one; none after one round of hops).
 5. Fits that end with a source on a kink are polished with that source's
    location held fixed (LM's one-sided Jacobian stalls there otherwise).
-6. K = 2 on a ring with the clipped cosine: close or lopsided pairs are refitted
-   by exact enumeration (:mod:`~olsbayes.ml.pairs`).
+6. K = 2, 3 on a ring with the clipped cosine: fits with close or lopsided
+   sources are refitted by exact enumeration (:mod:`~olsbayes.ml.pairs`).
 
 In stages 2-4 a run that comes within ``DEDUPE_TOL`` (max norm) of an optimum
 already found for its trial (the stage's base fit, or an earlier start's

@@ -1,15 +1,17 @@
-"""Close or lopsided pairs on a ring: the fast K = 2 fit escalated to the exact optimum.
+"""Close or lopsided sources on a ring: the fast K = 2, 3 fit escalated to the exact optimum.
 
 With the clipped cosine two sources seen by the same sub-sensors give one
 cosine, so close pairs have likelihoods with many cells and shallow optima.
-On a 30-ring the fast search missed the global K = 2 optimum (found by
-:func:`olsbayes.ml.exact.fit_exact`) in 1.6-3.6 % of fits of pairs 0.4-8
+On a 30-ring the fast search missed the global optimum (found by
+:func:`olsbayes.ml.exact.fit_exact`) in 1.6-3.6 % of K = 2 fits of pairs 0.4-8
 spacings apart (up to a third below one spacing; sigma 1e-4..1e-2, 12,000
-fits), and the ML error over resolvable placements at 1.25 spacings, sigma =
-1e-4, was 0.078 rad instead of the CRLB's 8.3e-5 that the global optimum
-reaches.  Every miss had its fitted sources closer than 4 spacings or one
-intensity below 1 % of the other, so exactly those fits are refitted by
-enumeration (~0.3 ms each); well-separated pairs (Fig. 3) are not touched.
+fits) and in 158 of 2,400 K = 3 fits with a pair 0.4-3 spacings apart (8-31 %
+at <= 1 spacing); the ML error over resolvable placements at 1.25 spacings,
+sigma = 1e-4, was 0.078 rad instead of the CRLB's 8.3e-5 that the global
+optimum reaches.  Every miss had two fitted sources closer than 4 spacings or
+an intensity below 1 % of the largest, so exactly those fits are refitted by
+enumeration (K = 2 ~0.3 ms, K = 3 ~2.5 ms each); well-separated scenes (Fig. 3,
+the benchmark's K = 3) are not touched.
 """
 
 from __future__ import annotations
@@ -21,39 +23,48 @@ from ..model import Model
 from ..sensitivity import Cosine, CosinePower
 from .batch import LMOutcome
 
-__all__ = ["exact_pairs", "CLOSE_SPACINGS", "WEAK_RATIO"]
+__all__ = ["exact_pairs", "CLOSE_SPACINGS", "WEAK_RATIO", "SOURCES"]
 
 #: Fitted sources closer than this many sensor spacings (2 pi / N) are escalated.
 CLOSE_SPACINGS = 4.0
 
-#: ... and so are fits whose weaker intensity is below this fraction of the stronger.
+#: ... and so are fits whose weakest intensity is below this fraction of the strongest.
 WEAK_RATIO = 0.01
+
+
+#: Numbers of sources escalated (the enumeration costs ~0.3 ms at K = 2, ~2.5 ms at
+#: K = 3, ~35-70 ms at K = 4 on a 30-ring).
+SOURCES = (2, 3)
 
 
 def _applies(model: Model, k: int) -> bool:
     law = model.sensitivity
-    return (k == 2 and isinstance(model.array, Ring)
+    return (k in SOURCES and isinstance(model.array, Ring)
             and (type(law) is Cosine or (type(law) is CosinePower and law.p == 1.0)))
 
 
 def exact_pairs(model: Model, data: np.ndarray, out: LMOutcome) -> LMOutcome:
-    """Refit close or lopsided K = 2 ring fits exactly; keep whichever is better.
+    """Refit close or lopsided K = 2, 3 ring fits exactly; keep whichever is better.
 
-    ``out`` holds fits (T, 4) of ``data`` (T, N).  Other models and K pass
+    ``out`` holds fits (T, 2K) of ``data`` (T, N).  Other models and K pass
     through unchanged.  Evaluation counts are not changed (the enumeration
     solves linear least-squares problems, it does not evaluate the model).
     """
-    if not _applies(model, out.x.shape[1] // 2):
+    k = out.x.shape[1] // 2
+    if not _applies(model, k):
         return out
     from .exact import fit_exact
 
     x = out.x
-    sep = np.abs(wrap_angle(x[:, 0] - x[:, 2])) * model.n_sensors / (2 * np.pi)
-    lo, hi = np.minimum(x[:, 1], x[:, 3]), np.maximum(x[:, 1], x[:, 3])
-    rows = np.flatnonzero((sep < CLOSE_SPACINGS) | (lo <= WEAK_RATIO * hi))
+    th, inten = x[:, 0::2], x[:, 1::2]
+    gaps = np.abs(wrap_angle(th[:, :, None] - th[:, None, :]))  # (T, K, K)
+    gaps[:, np.arange(k), np.arange(k)] = np.inf
+    sep = gaps.min(axis=(1, 2)) * model.n_sensors / (2 * np.pi)
+    weak = inten.min(axis=1) <= WEAK_RATIO * inten.max(axis=1)
+    rows = np.flatnonzero((sep < CLOSE_SPACINGS) | weak)
     if rows.size == 0:
         return out
-    ex = np.atleast_2d(fit_exact(model, data[rows], 2).params)
+    ex = np.atleast_2d(fit_exact(model, data[rows], k).params)
     chi2 = np.sum((data[rows] - model.response(ex)) ** 2, axis=-1)
     better = chi2 < out.chi2[rows] * (1 - 1e-12)
     sel = rows[better]
