@@ -389,3 +389,31 @@ def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum(monke
     monkeypatch.setattr(pairs, "WEAK_RATIO", -1.0)
     off = fit_ml(fig3, data, 2)
     np.testing.assert_array_equal(on.params, off.params)
+
+
+def test_compiled_post_fit_checks_match_numpy():
+    """Rival gaps and the close/weak selection: compiled == numpy on random fits."""
+    from olsbayes.ml import _checks_kernel as ck
+    from olsbayes.ml.rivals import rival_gap, rival_gap_numpy
+
+    model = ob.Model(ob.Ring(30), 1e-2)
+    rng = np.random.default_rng(44)
+    t, c, k = 300, 9, 3
+    x = model.canonical(np.column_stack([rng.uniform(-np.pi, np.pi, (t, k)),
+                                         rng.uniform(0, 1, (t, k))])[:, [0, 3, 1, 4, 2, 5]])
+    alt = x[:, None, :] + rng.normal(0, 0.02, (t, c, 2 * k))  # near and far (in std) optima
+    alt_chi2 = rng.uniform(0.0, 1e-2, (t, c))
+    alt_chi2[rng.uniform(size=(t, c)) < 0.2] = np.inf
+    chi2 = np.full(t, 2e-4)
+    std = rng.uniform(0.001, 0.02, (t, 2 * k))
+    got = rival_gap(model, x, chi2, (alt, alt_chi2), std)
+    ref = rival_gap_numpy(model, x, chi2, alt, alt_chi2, std)
+    assert np.isfinite(ref).any() and np.isinf(ref).any()
+    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
+    np.testing.assert_allclose(got, ref, rtol=1e-14)  # x / (2 s^2) vs x * (0.5 / s^2)
+    h = 2 * np.pi / 30
+    sep = np.abs(ob.wrap_angle(x[:, 0::2][:, :, None] - x[:, 0::2][:, None, :]))
+    sep[:, np.arange(k), np.arange(k)] = np.inf
+    inten = x[:, 1::2]
+    want = (sep.min(axis=(1, 2)) < 4 * h) | (inten.min(1) <= 0.05 * inten.max(1))
+    np.testing.assert_array_equal(ck.close_or_weak(x, 4 * h, 0.05), want)

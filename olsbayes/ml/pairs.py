@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import Ring, wrap_angle
+from ..geometry import Ring
 from ..model import Model
 from ..sensitivity import Cosine, CosinePower
 from .batch import LMOutcome
@@ -53,15 +53,12 @@ def exact_pairs(model: Model, data: np.ndarray, out: LMOutcome) -> LMOutcome:
     k = out.x.shape[1] // 2
     if not _applies(model, k):
         return out
+    from . import _checks_kernel
     from .exact import fit_exact
 
     x = out.x
-    th, inten = x[:, 0::2], x[:, 1::2]
-    gaps = np.abs(wrap_angle(th[:, :, None] - th[:, None, :]))  # (T, K, K)
-    gaps[:, np.arange(k), np.arange(k)] = np.inf
-    sep = gaps.min(axis=(1, 2)) * model.n_sensors / (2 * np.pi)
-    weak = inten.min(axis=1) <= WEAK_RATIO * inten.max(axis=1)
-    rows = np.flatnonzero((sep < CLOSE_SPACINGS) | weak)
+    close = CLOSE_SPACINGS * 2 * np.pi / model.n_sensors
+    rows = np.flatnonzero(_checks_kernel.close_or_weak(x, close, WEAK_RATIO))
     if rows.size == 0:
         return out
     ex = np.atleast_2d(fit_exact(model, data[rows], k).params)

@@ -18,11 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import wrap_angle
 from ..model import Model
 from .evaluate import estimation_errors
 
-__all__ = ["rival_gap", "DISTINCT_STD", "RIVAL_WARN", "RIVAL_RANGE"]
+__all__ = ["rival_gap", "rival_gap_numpy", "DISTINCT_STD", "RIVAL_WARN", "RIVAL_RANGE", "TIE"]
 
 #: A location differing by more than this many Fisher std makes an optimum distinct.
 DISTINCT_STD = 3.0
@@ -68,9 +67,24 @@ def rival_gap(
         :data:`MAX_SOURCES`).
     """
     t = x.shape[0]
-    if alternatives is None or model.n_sources_of(x) > MAX_SOURCES:
+    k = model.n_sources_of(x)
+    if alternatives is None or k > MAX_SOURCES:
         return np.full(t, np.nan)
     alt_x, alt_chi2 = alternatives
+    if model.kind == "angle":  # compiled, same rule
+        from . import _checks_kernel as ck
+
+        return ck.angle_rival_gap(x, chi2, alt_x, alt_chi2, std, 0.5 / model.sigma**2, TIE,
+                                  RIVAL_RANGE, ck.permutations(k), DISTINCT_STD)
+    return rival_gap_numpy(model, x, chi2, alt_x, alt_chi2, std)
+
+
+def rival_gap_numpy(
+    model: Model, x: np.ndarray, chi2: np.ndarray, alt_x: np.ndarray, alt_chi2: np.ndarray,
+    std: np.ndarray,
+) -> np.ndarray:
+    """:func:`rival_gap` in numpy (any model; the reference of the compiled angle case)."""
+    t = x.shape[0]
     gap = (alt_chi2 - chi2[:, None]) / (2.0 * model.sigma**2)  # (T, C)
     out = np.full(t, np.inf)
     # inf and NaN compare False; a gap below TIE is the estimate itself (a start that
@@ -78,26 +92,10 @@ def rival_gap(
     rows, cols = np.nonzero((gap > TIE) & (gap < RIVAL_RANGE))
     if rows.size == 0:
         return out
-    cand = model.canonical(alt_x[rows, cols])
     d1 = model.n_loc + 1
     loc = np.ones(x.shape[1], dtype=bool)
     loc[d1 - 1 :: d1] = False  # intensities are linear given the locations
-    # most starts reach the estimate itself: those within the threshold in canonical
-    # order are not distinct under that labelling; only the rest need matching
-    keep = np.any(np.abs(_diff(model, cand, x[rows])[:, loc])
-                  > DISTINCT_STD * std[rows][:, loc], axis=-1)
-    if not keep.any():
-        return out
-    rows, cols, cand = rows[keep], cols[keep], cand[keep]
-    err = estimation_errors(model, cand, x[rows])  # (n, P)
+    err = estimation_errors(model, alt_x[rows, cols], x[rows])  # (n, P)
     distinct = np.any(np.abs(err[:, loc]) > DISTINCT_STD * std[rows][:, loc], axis=-1)
     np.minimum.at(out, rows[distinct], gap[rows[distinct], cols[distinct]])
-    return np.maximum(out, 0.0)
-
-
-def _diff(model: Model, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a - b in the flat layout, the first location coordinate wrapped for angles."""
-    d = a - b
-    if model.kind != "position":
-        d[:, 0 :: model.n_loc + 1] = wrap_angle(d[:, 0 :: model.n_loc + 1])
-    return d
+    return out
