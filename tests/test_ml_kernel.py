@@ -369,27 +369,36 @@ def test_kink_cuts_same_best_fewer_evaluations():
 
 @pytest.mark.parametrize("k", [2, 3, 4])
 def test_blocked_tuple_search_equals_per_trial(k):
-    """Tuple search over blocks of trials (K = 2..4) == one trial at a time, exactly."""
-    from olsbayes.ml import _search_kernel as sk
+    """Tuple search over blocks of trials (K = 2..4) == one trial at a time, exactly,
+    for the best tuple and for the best tuple of a second mode (outside the best's
+    basins), and both == the numpy reference tuples.tuple_search."""
+    from olsbayes.ml import _tuple_kernel as tk
     from olsbayes.ml.grid import atoms, cached_default_grid
     from olsbayes.ml.search import _plan_views
-    from olsbayes.ml.tuples import tuple_plans
+    from olsbayes.ml.tuples import tuple_plans, tuple_search
 
     model = ob.Model(ob.Ring(30), 0.05)
     rng = np.random.default_rng(8)
     scene = ob.Scene(directions=rng.uniform(0, 2 * np.pi, k),
                      intensities=np.linspace(1.0, 0.3, k))
-    data = model.simulate(scene, rng, size=2 * sk.TUPLE_BLOCK + 5)
+    data = model.simulate(scene, rng, size=2 * tk.TUPLE_BLOCK + 5)
     g = atoms(model, cached_default_grid(model))
     for plan in tuple_plans(g, k, 3):
-        atoms_c, subset, columns, inv_rows = _plan_views(plan)
-        out = np.zeros((data.shape[0], 1, k), np.int64)
-        sk.tuple_trials(atoms_c, subset, columns, inv_rows, data, out, 0)
-        corr = np.empty(atoms_c.shape[0])
-        for i, s in enumerate(data):
-            sk._matvec(atoms_c, s, corr)
-            best = sk._best_tuple(corr, columns, inv_rows)
-            np.testing.assert_array_equal(out[i, 0], subset[columns[:, best]])
+        views = _plan_views(plan)
+        out = np.zeros((data.shape[0], 2, k), np.int64)
+        tk.tuple_trials(*views, data, out, 0, 1)
+        one = np.zeros_like(out)
+        tk._per_trial(*views, data, one, 0, 1)
+        np.testing.assert_array_equal(out, one)
+        best, second = tuple_search(plan, data, distinct=True)
+        np.testing.assert_array_equal(out[:, 0], best)
+        np.testing.assert_array_equal(out[:, 1], second)
+        np.testing.assert_array_equal(tuple_search(plan, data), best)
+        unit = g / np.linalg.norm(g, axis=1, keepdims=True)
+        corr = np.einsum("tan,tbn->tab", unit[best], unit[second])  # (T, K, K)
+        moved = np.any(best != second, axis=1)
+        assert moved.mean() > 0.5
+        assert np.all(corr[moved] <= 0.95)  # no atom of a second mode in a best's basin
 
 
 def test_search_gram_route_equals_atom_route(monkeypatch):
@@ -408,3 +417,4 @@ def test_search_gram_route_equals_atom_route(monkeypatch):
     b = search.grid_search(g, data, 3)
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_allclose(a[2], b[2], rtol=1e-9)
+

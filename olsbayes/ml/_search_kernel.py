@@ -2,12 +2,13 @@
 
 Runs, one trial at a time, the same stages as the numpy reference in
 :mod:`olsbayes.ml.search` -- orthogonal matching pursuit, alternating
-projection, runner-up positions of each source, the exhaustive K-tuple search
-of each coarse subset (:mod:`olsbayes.ml.tuples`) and the least-squares
-intensities of every candidate -- with the same scores, tie-breaking (first
-maximum) and stopping rules.  The orthonormal bases of the chosen atoms come
-from modified Gram–Schmidt instead of Householder QR and sums may be
-reassociated, so scores differ from the numpy ones by rounding only.
+projection, runner-up positions of each source and the least-squares
+intensities of every candidate (the exhaustive K-tuple search of each coarse
+subset, :mod:`olsbayes.ml.tuples`, is :mod:`._tuple_kernel`) -- with the same
+scores, tie-breaking (first maximum) and stopping rules.  The orthonormal bases
+of the chosen atoms come from modified Gram–Schmidt instead of Householder QR
+and sums may be reassociated, so scores differ from the numpy ones by rounding
+only.
 
 For one data vector numpy's per-call overhead is most of the numpy search's
 cost; compiled, a K = 2 search on a 30-ring takes a few tens of microseconds.
@@ -19,11 +20,9 @@ import numba
 import numpy as np
 
 from ._linalg_kernel import _solve
+from .tuples import NEIGHBOUR
 
-__all__ = ["intensities_trials", "neighbours", "search_trials", "tuple_trials"]
-
-#: Normalised-atom correlation above which two atoms count as one basin (search.py).
-NEIGHBOUR = 0.95
+__all__ = ["intensities_trials", "neighbours", "search_trials"]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
@@ -232,142 +231,6 @@ def search_trials(g, gram, gnorm2, unit, indptr, indices, data, k, max_sweeps, n
         base = _pursue_and_alternate(g, gram, gnorm2, gs, s, k, max_sweeps, w, sc)
         out[i, 0] = base
         _runners_up(unit, indptr, indices, base, n_alt, sc, out[i], 1)
-
-
-@numba.njit(cache=True)
-def _best_tuple(corr, columns, inv_rows):  # pragma: no cover - compiled
-    """Index of the first feasible K-tuple with the largest RSS drop (0 if none).
-
-    coef_a = sum_b A^-1_ab corr_b and score = sum_a corr_a coef_a, summed in the
-    order of tuples.tuple_search; a tuple with some coef_a < 0 is infeasible.  K = 2
-    and 3 unrolled; ``columns`` unsigned (no negative-index wraparound per gather).
-    """
-    k, n_c = columns.shape
-    best, arg = -np.inf, 0
-    if k == 2:
-        for c in range(n_c):
-            b0, b1 = corr[columns[0, c]], corr[columns[1, c]]
-            f0 = inv_rows[0, 0, c] * b0 + inv_rows[0, 1, c] * b1
-            f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1
-            sc = b0 * f0 + b1 * f1
-            if (f0 >= 0.0) & (f1 >= 0.0) & (sc > best):
-                best, arg = sc, c
-        return arg
-    if k == 3:
-        for c in range(n_c):
-            b0, b1, b2 = corr[columns[0, c]], corr[columns[1, c]], corr[columns[2, c]]
-            f0 = inv_rows[0, 0, c] * b0 + inv_rows[0, 1, c] * b1 + inv_rows[0, 2, c] * b2
-            f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1 + inv_rows[1, 2, c] * b2
-            f2 = inv_rows[2, 0, c] * b0 + inv_rows[2, 1, c] * b1 + inv_rows[2, 2, c] * b2
-            sc = b0 * f0 + b1 * f1 + b2 * f2
-            if (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) & (sc > best):
-                best, arg = sc, c
-        return arg
-    for c in range(n_c):
-        sc, feasible = 0.0, True
-        for a in range(k):
-            cf = inv_rows[a, 0, c] * corr[columns[0, c]]
-            for b in range(1, k):
-                cf += inv_rows[a, b, c] * corr[columns[b, c]]
-            feasible = feasible and cf >= 0.0
-            sc += corr[columns[a, c]] * cf
-        if feasible and sc > best:
-            best, arg = sc, c
-    return arg
-
-
-#: Trials per block of the tuple search: each tuple's inverse Gram matrix is read
-#: once per block and applied to every trial of it (unit-stride over trials).
-TUPLE_BLOCK = 64
-
-
-@numba.njit(cache=True)
-def _block_best(corr_t, columns, inv_rows, best, arg):  # pragma: no cover - compiled
-    """:func:`_best_tuple` for a block of trials at once, K = 2..4.
-
-    corr_t (Mc, B): coarse correlations, one column per trial; best (B,) and arg
-    (B,) are updated in tuple order (strictly greater: the first maximum), with
-    the same arithmetic per trial as :func:`_best_tuple`, so the same tuples.
-    """
-    k, n_c = columns.shape
-    nb = best.size
-    for c in range(n_c):
-        i0, i1 = columns[0, c], columns[1, c]
-        if k == 2:
-            a00, a01 = inv_rows[0, 0, c], inv_rows[0, 1, c]
-            a10, a11 = inv_rows[1, 0, c], inv_rows[1, 1, c]
-            for tb in range(nb):
-                b0, b1 = corr_t[i0, tb], corr_t[i1, tb]
-                f0 = a00 * b0 + a01 * b1
-                f1 = a10 * b0 + a11 * b1
-                sc = b0 * f0 + b1 * f1
-                up = (f0 >= 0.0) & (f1 >= 0.0) & (sc > best[tb])
-                best[tb] = sc if up else best[tb]
-                arg[tb] = c if up else arg[tb]
-        elif k == 3:
-            i2 = columns[2, c]
-            a00, a01, a02 = inv_rows[0, 0, c], inv_rows[0, 1, c], inv_rows[0, 2, c]
-            a10, a11, a12 = inv_rows[1, 0, c], inv_rows[1, 1, c], inv_rows[1, 2, c]
-            a20, a21, a22 = inv_rows[2, 0, c], inv_rows[2, 1, c], inv_rows[2, 2, c]
-            for tb in range(nb):
-                b0, b1, b2 = corr_t[i0, tb], corr_t[i1, tb], corr_t[i2, tb]
-                f0 = a00 * b0 + a01 * b1 + a02 * b2
-                f1 = a10 * b0 + a11 * b1 + a12 * b2
-                f2 = a20 * b0 + a21 * b1 + a22 * b2
-                sc = b0 * f0 + b1 * f1 + b2 * f2
-                up = (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) & (sc > best[tb])
-                best[tb] = sc if up else best[tb]
-                arg[tb] = c if up else arg[tb]
-        else:
-            i2, i3 = columns[2, c], columns[3, c]
-            for tb in range(nb):
-                b0, b1, b2, b3 = corr_t[i0, tb], corr_t[i1, tb], corr_t[i2, tb], corr_t[i3, tb]
-                f0 = inv_rows[0, 0, c] * b0 + inv_rows[0, 1, c] * b1
-                f0 = f0 + inv_rows[0, 2, c] * b2 + inv_rows[0, 3, c] * b3
-                f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1
-                f1 = f1 + inv_rows[1, 2, c] * b2 + inv_rows[1, 3, c] * b3
-                f2 = inv_rows[2, 0, c] * b0 + inv_rows[2, 1, c] * b1
-                f2 = f2 + inv_rows[2, 2, c] * b2 + inv_rows[2, 3, c] * b3
-                f3 = inv_rows[3, 0, c] * b0 + inv_rows[3, 1, c] * b1
-                f3 = f3 + inv_rows[3, 2, c] * b2 + inv_rows[3, 3, c] * b3
-                sc = b0 * f0 + b1 * f1 + b2 * f2 + b3 * f3
-                up = (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) & (f3 >= 0.0) & (sc > best[tb])
-                best[tb] = sc if up else best[tb]
-                arg[tb] = c if up else arg[tb]
-
-
-@numba.njit(cache=True)
-def tuple_trials(atoms, subset, columns, inv_rows, data, out, col):  # pragma: no cover
-    """Best feasible K-tuple of one coarse plan per trial into out[:, col] (tuples.tuple_search).
-
-    K = 2..4 in blocks of up to :data:`TUPLE_BLOCK` trials (:func:`_block_best`), other
-    K (and K <= 3 for fewer than 4 trials) one trial at a time (:func:`_best_tuple`);
-    the same tuples either way.
-    """
-    k = columns.shape[0]
-    mc, t = atoms.shape[0], data.shape[0]
-    corr = np.empty(mc)
-    if k < 2 or k > 4 or (t < 4 and k < 4):  # (K <= 3: one lane is slower blocked)
-        for i in range(t):
-            _matvec(atoms, data[i], corr)
-            arg = _best_tuple(corr, columns, inv_rows)
-            for a in range(k):
-                out[i, col, a] = subset[columns[a, arg]]
-        return
-    nb = min(TUPLE_BLOCK, t)  # a single fit scans one lane
-    corr_t, best, args = np.zeros((mc, nb)), np.empty(nb), np.empty(nb, np.int64)
-    for start in range(0, t, nb):
-        m = min(nb, t - start)
-        for tb in range(m):
-            _matvec(atoms, data[start + tb], corr)
-            for u in range(mc):
-                corr_t[u, tb] = corr[u]
-        best[:] = -np.inf
-        args[:] = 0
-        _block_best(corr_t, columns, inv_rows, best, args)
-        for tb in range(m):
-            for a in range(k):
-                out[start + tb, col, a] = subset[columns[a, args[tb]]]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})

@@ -23,7 +23,7 @@ from ..model import Model
 from ..sensitivity import Cosine, CosinePower
 from .batch import LMOutcome
 
-__all__ = ["exact_pairs", "CLOSE_SPACINGS", "WEAK_RATIO", "SOURCES"]
+__all__ = ["exact_pairs", "exact_applies", "CLOSE_SPACINGS", "WEAK_RATIO", "SOURCES"]
 
 #: Fitted sources closer than this many sensor spacings (2 pi / N) are escalated.
 CLOSE_SPACINGS = 4.0
@@ -37,7 +37,8 @@ WEAK_RATIO = 0.01
 SOURCES = (2, 3)
 
 
-def _applies(model: Model, k: int) -> bool:
+def exact_applies(model: Model, k: int) -> bool:
+    """Whether K-source fits of this model are escalated (ring, clipped cosine, K in SOURCES)."""
     law = model.sensitivity
     return (k in SOURCES and isinstance(model.array, Ring)
             and (type(law) is Cosine or (type(law) is CosinePower and law.p == 1.0)))
@@ -51,7 +52,7 @@ def exact_pairs(model: Model, data: np.ndarray, out: LMOutcome) -> LMOutcome:
     solves linear least-squares problems, it does not evaluate the model).
     """
     k = out.x.shape[1] // 2
-    if not _applies(model, k):
+    if not exact_applies(model, k):
         return out
     from . import _checks_kernel
     from .exact import fit_exact

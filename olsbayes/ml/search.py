@@ -22,13 +22,12 @@ import weakref
 
 import numpy as np
 
+from .tuples import NEIGHBOUR as _NEIGHBOUR
 from .tuples import TUPLE_BUDGET, TuplePlan, tuple_plans, tuple_search
 
 __all__ = ["grid_search", "grid_search_numpy"]
 
 _CHUNK = 512
-#: Normalised-atom correlation above which two atoms count as one basin.
-_NEIGHBOUR = 0.95
 
 
 def _scores(g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -133,17 +132,21 @@ def _alternatives(
 
 def _search_chunk(
     g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int, max_sweeps: int,
-    plans: list[TuplePlan], n_alt: int,
+    plans: list[TuplePlan], n_alt: int, distinct: bool = False,
 ) -> np.ndarray:
     """Candidate K-atom sets (T, C, K): pursuit + alternating projection, runner-up
-    positions of each source, and the best tuple of each coarse subset."""
+    positions of each source, the best tuple of each coarse subset and, with
+    ``distinct``, each subset's best tuple of a second mode."""
     first, last = _pursuit(g, gnorm2, s, k)
     base, scores = _alternate(g, gnorm2, s, first, max_sweeps)
     if k == 1:  # no sweeps; the scores of the single source given no others
         scores = [last]
     cands = [base] + _alternatives(g, gnorm2, s, base, n_alt, scores)
-    for plan in plans:
-        cands.append(tuple_search(plan, s))
+    found = [tuple_search(plan, s, distinct) for plan in plans]
+    if distinct:
+        cands += [f[0] for f in found] + [f[1] for f in found]
+    else:
+        cands += found
     return np.stack(cands, axis=1)
 
 
@@ -214,12 +217,13 @@ def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
     """Read-only kernel arguments of a (cached, immutable) tuple plan."""
     return _memo(plan, lambda p: (
         _frozen_view(p.atoms), _frozen_view(p.subset, np.int64),
-        _frozen_view(p.columns, np.uint64), _frozen_view(p.inv_rows)))
+        _frozen_view(p.columns, np.uint64), _frozen_view(p.inv_rows),
+        _frozen_view(p.near, np.bool_)))
 
 
 def grid_search(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
-    budget: int = TUPLE_BUDGET, n_alt: int = 2,
+    budget: int = TUPLE_BUDGET, n_alt: int = 2, distinct: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate K-atom explanations of every data vector (compiled, one trial at a time).
 
@@ -228,15 +232,17 @@ def grid_search(
     scores differ from the numpy ones by rounding only.
     """
     from . import _search_kernel as sk  # numba is imported on first use
+    from . import _tuple_kernel as tk
 
     gv, gram, gnorm2, unit, indptr, indices = _atom_views(g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
-    t, first = data.shape[0], 1 + k * n_alt
-    idx = np.empty((t, first + len(plans), k), dtype=np.int64)
+    t, first, n_p = data.shape[0], 1 + k * n_alt, len(plans)
+    idx = np.empty((t, first + n_p * (1 + bool(distinct)), k), dtype=np.int64)
     s = _frozen_view(data)
     sk.search_trials(gv, gram, gnorm2, unit, indptr, indices, s, k, max_sweeps, n_alt, idx)
     for j, plan in enumerate(plans):
-        sk.tuple_trials(*_plan_views(plan), s, idx, first + j)
+        tk.tuple_trials(*_plan_views(plan), s, idx, first + j,
+                        first + n_p + j if distinct else -1)
     inten, rss = np.empty(idx.shape), np.empty(idx.shape[:2])
     sk.intensities_trials(gv, s, idx, inten, rss)
     return idx, inten, rss
@@ -244,7 +250,7 @@ def grid_search(
 
 def grid_search_numpy(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
-    budget: int = TUPLE_BUDGET, n_alt: int = 2,
+    budget: int = TUPLE_BUDGET, n_alt: int = 2, distinct: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate K-atom explanations of every data vector (numpy reference).
 
@@ -264,11 +270,16 @@ def grid_search_numpy(
         Cap on the number of K-tuples per coarse subset (sets its size).
     n_alt : int
         Runner-up positions per source (given the others) added as candidates.
+    distinct : bool
+        Also each coarse subset's best tuple outside the basins of its best one
+        (:func:`~olsbayes.ml.tuples.tuple_search`): a second mode, e.g. the
+        rotated alias of a near-equilateral K = 3 scene.
 
     Returns
     -------
     idx : ndarray of int, shape (T, C, K)
-        C = 1 + K n_alt + (n_coarse if K >= 2 else 0) candidate atom sets per trial.
+        C = 1 + K n_alt + (n_coarse (2 if distinct else 1) if K >= 2 else 0) candidate
+        atom sets per trial: the best tuples of the subsets, then their second modes.
     intensity : ndarray, shape (T, C, K)
         Their least-squares intensities, clipped at 0.
     rss : ndarray, shape (T, C)
@@ -277,7 +288,7 @@ def grid_search_numpy(
     gnorm2 = np.einsum("mn,mn->m", g, g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
     parts = [
-        _search_chunk(g, gnorm2, data[i : i + _CHUNK], k, max_sweeps, plans, n_alt)
+        _search_chunk(g, gnorm2, data[i : i + _CHUNK], k, max_sweeps, plans, n_alt, distinct)
         for i in range(0, data.shape[0], _CHUNK)
     ]
     idx = np.concatenate(parts, axis=0)

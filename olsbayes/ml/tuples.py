@@ -23,6 +23,9 @@ import numpy as np
 
 __all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "tuple_search", "TuplePlan"]
 
+#: Normalised-atom correlation above which two atoms count as one basin.
+NEIGHBOUR = 0.95
+
 #: Default cap on the number of K-tuples enumerated per data vector.
 TUPLE_BUDGET = 5_000
 _BLOCK = 32_768  # elements of each (t, C) work array per block: the ~2K + 3 arrays stay in cache
@@ -70,6 +73,7 @@ class TuplePlan:
     gram_inv: np.ndarray  # (C, K, K)
     columns: np.ndarray  # (K, C) combos.T, C-contiguous (gathers read it row by row)
     inv_rows: np.ndarray  # (K, K, C) gram_inv moved to contiguous (i, j) rows
+    near: np.ndarray  # (Mc, Mc) bool: coarse atoms in one basin (correlation > NEIGHBOUR)
 
 
 def _plan(g: np.ndarray, subset: np.ndarray, k: int) -> TuplePlan:
@@ -80,8 +84,9 @@ def _plan(g: np.ndarray, subset: np.ndarray, k: int) -> TuplePlan:
     w = np.linalg.eigvalsh(a)
     ok = w[:, 0] > 1e-10 * w[:, -1]
     combos, inv = combos[ok], np.linalg.inv(a[ok])
+    unit = gc / np.sqrt(np.maximum(np.diag(gram), 1e-300))[:, None]
     return TuplePlan(subset, gc, combos, inv, np.ascontiguousarray(combos.T),
-                     np.ascontiguousarray(np.moveaxis(inv, 0, -1)))
+                     np.ascontiguousarray(np.moveaxis(inv, 0, -1)), unit @ unit.T > NEIGHBOUR)
 
 
 _CACHE: OrderedDict = OrderedDict()
@@ -124,25 +129,33 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET) 
     return plans
 
 
-def tuple_search(plan: TuplePlan, data: np.ndarray) -> np.ndarray:
+def tuple_search(
+    plan: TuplePlan, data: np.ndarray, distinct: bool = False
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Best feasible K-tuple of the plan's coarse atoms for every data vector.
 
     Parameters
     ----------
     plan : TuplePlan
     data : ndarray, shape (T, N)
+    distinct : bool
+        Also return the best feasible tuple none of whose atoms is in the basin
+        (``plan.near``) of an atom of the best one: a second, distinct mode (the
+        best tuple again where there is none).
 
     Returns
     -------
     ndarray of int, shape (T, K)
         Fine-grid indices of the tuple with the largest drop in residual sum of
-        squares among tuples whose least-squares intensities are all >= 0.
+        squares among tuples whose least-squares intensities are all >= 0; with
+        ``distinct``, a pair (best, second mode).
     """
     combos, a_inv = plan.columns, plan.inv_rows
     k, n_c = combos.shape
     corr = data @ plan.atoms.T  # (T, Mc)
     step = max(1, _BLOCK // max(n_c, 1))
     best = np.empty(data.shape[0], dtype=np.int64)
+    second = best.copy()
     rows = min(step, data.shape[0])
     coef, tmp = np.empty((rows, n_c)), np.empty((rows, n_c))
     score, feasible = np.empty((rows, n_c)), np.empty((rows, n_c), bool)
@@ -162,5 +175,14 @@ def tuple_search(plan: TuplePlan, data: np.ndarray) -> np.ndarray:
                 fe &= cf >= 0
                 sc += np.multiply(b[i], cf, out=tp)
         sc[~fe] = -np.inf
-        best[start : start + step] = np.argmax(sc, axis=1)
+        top = np.argmax(sc, axis=1)
+        best[start : start + step] = top
+        if distinct:
+            blocked = plan.near[plan.combos[top]].any(axis=1)  # (t, Mc)
+            sc[blocked[:, plan.combos].any(axis=2)] = -np.inf  # a blocked atom
+            alt = np.argmax(sc, axis=1)
+            none = ~np.isfinite(sc[np.arange(m), alt])
+            second[start : start + step] = np.where(none, top, alt)
+    if distinct:
+        return plan.subset[plan.combos[best]], plan.subset[plan.combos[second]]
     return plan.subset[plan.combos[best]]
