@@ -268,6 +268,31 @@ def test_dedupe_of_runs_keeps_every_optimum(sigma, directions, intensities, monk
     assert dedup.n_evaluations.sum() < 0.9 * full.n_evaluations.sum()
 
 
+@pytest.mark.parametrize("sigma, directions, intensities", [
+    (0.1, [0.5, 0.5 + np.pi], [1.0, 0.2]),  # Fig. 3, many fits end on a kink
+    (1e-2, [0.37, 2.59, 4.82], [1.0, 0.8, 0.6]),
+    (1e-2, 0.37 + np.radians([0.0, 60.0, 150.0, 260.0]), [1.0, 0.87, 0.73, 0.6]),
+])
+def test_runs_stopped_in_a_known_cell_change_no_fit(sigma, directions, intensities,
+                                                    monkeypatch):
+    """Runs that enter the linear cell of an optimum already found for their trial
+    stop there (_kernel.CELL_STOP: chi^2 is convex in the phasors inside a cell):
+    the same fits as running them to convergence (to LM's tolerance, ftol * chi^2;
+    measured: 2 of 36,000 random K = 2..4 fits differ, by < 1 in log L), with
+    ~35 % fewer evaluations."""
+    from olsbayes.ml import _kernel
+
+    model = ob.Model(ob.Ring(30), sigma)
+    scene = ob.Scene(directions=directions, intensities=intensities)
+    data = model.simulate(scene, 13, size=150)
+    cells = fit_ml(model, data, scene.n_sources, warn=False)
+    monkeypatch.setattr(_kernel, "CELL_STOP", False)
+    full = fit_ml(model, data, scene.n_sources, warn=False)
+    np.testing.assert_allclose(cells.log_likelihood, full.log_likelihood, rtol=0,
+                               atol=1e-10 * model.n_sensors)
+    assert cells.n_evaluations.sum() < 0.85 * full.n_evaluations.sum()
+
+
 def test_k4_search_reaches_the_truth_basin_of_a_near_ambiguous_scene():
     """K = 4 default search (24 coarse subsets) vs the old 3 on a scene with a rival mode.
 

@@ -418,3 +418,26 @@ def test_search_gram_route_equals_atom_route(monkeypatch):
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_allclose(a[2], b[2], rtol=1e-9)
 
+
+
+def test_known_cell_matches_sub_sensor_visibility():
+    """_known_cell finds the known optimum whose sub-sensor visibility pattern the
+    iterate shares (read off the Jacobian's intensity rows, max(cos, 0)); a known
+    optimum with a source on a horizon has no cell (ambiguous)."""
+    from olsbayes.ml._model_kernel import _residual
+
+    model = ob.Model(ob.Ring(12), 0.05)
+    kind, law, p, nrm, pos = _kernel._arrays(model)
+    step = 2 * np.pi / 12  # crossings every half step (pi / 12)
+    known = np.array([[0.1, 1.0, 2.0, 0.5], [1.0, 0.8, -2.0, 0.4], [np.pi / 2, 1.0, 2.0, 0.5]])
+    vis = np.zeros((3, 2, 12), np.bool_)
+    ok = np.array([_kernel._cell(nrm, known[j], vis[j]) for j in range(3)])
+    assert ok.tolist() == [True, True, False]  # pi / 2 is on a sub-sensor's horizon
+    jt, r = np.zeros((4, 16)), np.zeros(16)
+    s = np.zeros(12)
+    for x, expect in (([0.1 + 0.02, 0.3, 2.0 - 0.02, 0.9], 0),  # inside known[0]'s cell
+                      ([0.1 + step, 1.0, 2.0, 0.5], -1),  # source 0 a whole step away
+                      ([1.0 - 0.01, 0.1, -2.0 + 0.01, 2.0], 1),
+                      ([np.pi / 2 + 0.01, 1.0, 2.0, 0.5], -1)):  # next to the ambiguous one
+        _residual(kind, law, p, nrm, pos, np.array(x), s, jt[:, :12], r[:12], True)
+        assert _kernel._known_cell(jt, vis, ok, 3) == expect

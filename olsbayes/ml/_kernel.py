@@ -17,8 +17,10 @@ three source kinds of :class:`~olsbayes.Model` and the laws
 per sensor-source pair (one cos/sin per source and iteration).  Other laws take
 the numpy path.
 
-Option (compiled only, used by the fast fit): ``kinks`` cuts rejected steps
-at the sub-sensor horizons of a ring with the clipped cosine (:func:`_lm_trial`).
+Options (compiled only, used by the fast fit): ``kinks`` cuts rejected steps
+at the sub-sensor horizons of a ring with the clipped cosine (:func:`_lm_trial`);
+runs of a group stop at optima found before (``tol``), and on such a ring also
+on entering the linear cell of one (:data:`CELL_STOP`, :func:`_known_cell`).
 
 Trials are independent and run serially (deterministic; a batch equals a loop
 of single calls bit for bit).  Compiled once per machine (``cache=True``).
@@ -42,6 +44,10 @@ __all__ = ["KINDS", "law_code", "lm_batch", "supports"]
 
 #: Source kinds covered, in the order of their integer codes.
 KINDS = ("angle", "lonlat", "position")
+
+#: Runs that stop at known optima (tol > 0, ``kinks``) also stop on entering the linear
+#: cell of one (:func:`_known_cell`).
+CELL_STOP = True
 
 #: Damping above which no descent step is representable (as in batch.py).
 LAMBDA_MAX = 1e14
@@ -159,6 +165,45 @@ def _kink_alpha(nrm, x, step, jt, jt2, fk):  # pragma: no cover - compiled
     return best, src
 
 
+@numba.njit(cache=True)
+def _cell(nrm, x, vis):  # pragma: no cover - compiled
+    """vis[a, q]: sub-sensor q sees source a of the angle fit x; False if a source is
+    within 1e-9 of a sub-sensor's horizon (the cell is then ambiguous)."""
+    for a in range(x.size // 2):
+        u0, u1 = math.cos(x[2 * a]), math.sin(x[2 * a])
+        for q in range(nrm.shape[1]):
+            c = u0 * nrm[0, q] + u1 * nrm[1, q]
+            if abs(c) < 1e-9:
+                return False
+            vis[a, q] = c > 0.0
+    return True
+
+
+@numba.njit(cache=True)
+def _known_cell(jt, known_vis, known_ok, n_known):  # pragma: no cover - compiled
+    """Index of a known optimum whose linear cell holds the iterate whose Jacobian is jt
+    (ring, clipped cosine: its intensity rows are max(cos, 0)), else -1.
+
+    Inside a cell the readings are linear in the phasors (I cos a, I sin a) and the
+    cell is a product of convex cones, so chi^2 there is convex: a converged
+    optimum inside its cell (``known_ok``: no source on a horizon) is the cell's
+    only minimum, where a run entering the cell ends unless it leaves it again.
+    """
+    k, n = known_vis.shape[1], known_vis.shape[2]
+    for j in range(n_known):
+        same = known_ok[j]
+        for a in range(k):
+            if not same:
+                break
+            for q in range(n):
+                if (jt[2 * a + 1, q] > 0.0) != known_vis[j, a, q]:
+                    same = False
+                    break
+        if same:
+            return j
+    return -1
+
+
 @numba.njit(cache=True, inline="always")
 def _near(known, n_known, x, tol):  # pragma: no cover - compiled
     """Whether x is within tol (max norm) of one of the rows known[:n_known]."""
@@ -175,7 +220,7 @@ def _near(known, n_known, x, tol):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
-              kinks, known, n_known, tol):  # pragma: no cover
+              kinks, known, n_known, tol, cells, known_vis, known_ok):  # pragma: no cover
     """Bounded LM of one trial from x (in place); returns (chi2, n_iter, converged, stalled).
 
     w: workspace arrays (jt, r, jt2, r2, a, ad, g, gm, step, x_new, fx, fk).  Proposals
@@ -192,7 +237,10 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
 
     Known optima (rows of ``known[:n_known]``, converged runs of the same data):
     a run whose accepted iterate comes within ``tol`` (max norm) of one stops
-    there (converged; its chi^2 is not below that optimum's but for rounding).
+    there (converged; its chi^2 is not below that optimum's but for rounding);
+    with ``cells`` (ring, clipped cosine) a run whose accepted iterate lies in the
+    linear cell of one (``known_vis``, ``known_ok``: :func:`_cell`) stops with that
+    optimum as its result.
     """
     jt, r, jt2, r2, a, ad, g, gm, step, xn, fx, fk = w
     d1 = kind + 2
@@ -237,6 +285,11 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
                 lam = max(lam / 5.0, 1e-12)
             if _near(known, n_known, x, tol):
                 return chi2_new, it + 1, True, False
+            j = _known_cell(jt2, known_vis, known_ok, n_known) if kinks and cells else -1
+            if j >= 0:  # the run would end at that optimum: report it
+                x[:] = known[j]
+                chi2_new = _residual(kind, law, p, nrm, pos, x, s, jt2, r2, False)
+                return chi2_new, it + 1, True, False
         else:
             lam *= 8.0
         stall = lam > LAMBDA_MAX and not small
@@ -250,7 +303,7 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
 
 @numba.njit(cache=True)
 def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol, kinks, group,
-            base, tol, chi2, n_iter, conv, stalled):  # pragma: no cover - compiled
+            base, tol, cells, chi2, n_iter, conv, stalled):  # pragma: no cover - compiled
     """:func:`_lm_trial` for every row of x (T, P) in place, outputs per trial.
 
     Rows come in groups of ``group`` runs on the same data; with tol > 0 a run
@@ -265,19 +318,25 @@ def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol, kinks,
          np.empty((np_, np_)), np.empty((np_, np_)), np.empty(np_), np.empty(np_),
          np.empty(np_), np.empty(np_), np.empty(np_, np.bool_), np.empty(np_, np.bool_))
     known = np.empty((group + 1, np_))
+    cells = cells and kinks and kind == 0 and law == _LAW_COSINE
+    known_vis = np.zeros((group + 1, np_ // 2 if cells else 0, data.shape[1]), np.bool_)
+    known_ok = np.zeros(group + 1, np.bool_)
     n_known = 0
     for i in range(t):
         if i % group == 0:
             n_known = 0
             if tol > 0.0 and not np.isnan(base[i // group, 0]):
                 known[0] = base[i // group]
+                known_ok[0] = cells and _cell(nrm, known[0], known_vis[0])
                 n_known = 1
         _project(kind, zfl, x[i])
         c, m, ok, st = _lm_trial(kind, law, p, nrm, pos, zfl, data[i], x[i], frozen[i],
-                                 max_iter, ftol, w, kinks, known, n_known, tol)
+                                 max_iter, ftol, w, kinks, known, n_known, tol, cells,
+                                 known_vis, known_ok)
         chi2[i], n_iter[i], conv[i], stalled[i] = c, m, ok, st
-        if tol > 0.0 and ok and not st:
+        if tol > 0.0 and ok and not st and not _near(known, n_known, x[i], 0.0):
             known[n_known] = x[i]
+            known_ok[n_known] = cells and _cell(nrm, x[i], known_vis[n_known])
             n_known += 1
 
 
@@ -310,7 +369,8 @@ def lm_batch(
     if tol > 0.0 and (t % group or b.shape[0] != t // group):
         raise ValueError(f"lm_batch: {t} rows, group {group}, base rows {b.shape[0]}")
     _lm_all(kind, code, p, nrm, pos, float(z_floor), s, x, fz, int(max_iter), float(ftol),
-            bool(kinks), int(group), b, float(tol), chi2, n_iter, conv, stalled)
+            bool(kinks), int(group), b, float(tol), bool(CELL_STOP and tol > 0.0), chi2, n_iter,
+            conv, stalled)
     return x, chi2, conv, 2 * n_iter, stalled
 
 

@@ -41,7 +41,11 @@ already found for its trial (the stage's base fit, or an earlier start's
 converged run) stops there: the starts of a trial mostly share one optimum
 (K = 3: 10 candidates, 1.03 distinct optima per trial).  Measured on 3000 fits
 of each benchmark setting: no log-likelihood changed by more than 1e-12;
-evaluations per fit K = 3 197 -> 128, Fig. 3 98 -> 63.
+evaluations per fit K = 3 197 -> 128, Fig. 3 98 -> 63.  With the clipped cosine
+on a ring a run also stops as soon as it enters the linear cell of such an
+optimum (:data:`olsbayes.ml._kernel.CELL_STOP`): chi^2 is convex in the phasors
+there, so the run would end at that optimum (36,000 random K = 2..4 fits: 2
+differ, by < 1 in log L; 35-45 % fewer evaluations, 7-21 % less time).
 
 Being deterministic, a batch fit equals a loop of single fits.
 """
