@@ -174,7 +174,7 @@ def print_table(rows: list[dict]) -> None:
     print("-" * len(head))
     for r in rows:
         print(f"{r['setting']:14s} {r['method']:10s} {r['trials']:5d} {r['eff']:40s} "
-              f"{r['fail']:6.3f} {r['glob6']:8.4f} {r['glob3']:8.4f} {r['cpu_ms']:8.3f} "
+              f"{r['fail']:6.3f} {r['glob6']:8.4f} {r['glob3']:8.4f} {r['cpu_ms']:8.4f} "
               f"{r['wall_ms']:8.3f} {r['evals']:6.0f}")
     print("eff = CRLB variance / mean squared error; its sampling sd is ~sqrt(2/T) "
           "(0.063 at T=500, 0.032 at T=2000); evals = median forward-model evaluations "

@@ -24,64 +24,68 @@ TUPLE_BLOCK = 64
 
 
 @numba.njit(cache=True)
-def _best_tuple(corr, columns, inv_rows, blocked, masked):  # pragma: no cover - compiled
-    """Index of the first feasible K-tuple with the largest RSS drop, and that drop
-    (-inf and index 0 if none); ``masked``: tuples with a ``blocked`` atom are skipped.
+def _tuple_scores(corr, columns, inv_rows, out):  # pragma: no cover - compiled
+    """out[c]: RSS drop of K-tuple c, -inf if infeasible (some coefficient < 0).
 
     coef_a = sum_b A^-1_ab corr_b and score = sum_a corr_a coef_a, summed in the
-    order of tuples.tuple_search; a tuple with some coef_a < 0 is infeasible.  K = 2
-    and 3 unrolled; ``columns`` unsigned (no negative-index wraparound per gather).
+    order of tuples.tuple_search.  No loop-carried dependence, so the loop
+    vectorises (the running maximum is a separate pass).  K = 2 and 3 unrolled;
+    ``columns`` unsigned (no negative-index wraparound per gather).
     """
     k, n_c = columns.shape
-    best, arg = -np.inf, 0
     if k == 2:
         for c in range(n_c):
-            i0, i1 = columns[0, c], columns[1, c]
-            b0, b1 = corr[i0], corr[i1]
+            b0, b1 = corr[columns[0, c]], corr[columns[1, c]]
             f0 = inv_rows[0, 0, c] * b0 + inv_rows[0, 1, c] * b1
             f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1
             sc = b0 * f0 + b1 * f1
-            ok = (f0 >= 0.0) & (f1 >= 0.0) & (sc > best)
-            if masked:
-                ok = ok and not (blocked[i0] or blocked[i1])
-            if ok:
-                best, arg = sc, c
-        return arg, best
+            out[c] = sc if (f0 >= 0.0) & (f1 >= 0.0) else -np.inf
+        return
     if k == 3:
         for c in range(n_c):
-            i0, i1, i2 = columns[0, c], columns[1, c], columns[2, c]
-            b0, b1, b2 = corr[i0], corr[i1], corr[i2]
+            b0, b1, b2 = corr[columns[0, c]], corr[columns[1, c]], corr[columns[2, c]]
             f0 = inv_rows[0, 0, c] * b0 + inv_rows[0, 1, c] * b1 + inv_rows[0, 2, c] * b2
             f1 = inv_rows[1, 0, c] * b0 + inv_rows[1, 1, c] * b1 + inv_rows[1, 2, c] * b2
             f2 = inv_rows[2, 0, c] * b0 + inv_rows[2, 1, c] * b1 + inv_rows[2, 2, c] * b2
             sc = b0 * f0 + b1 * f1 + b2 * f2
-            ok = (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) & (sc > best)
-            if masked:
-                ok = ok and not (blocked[i0] or blocked[i1] or blocked[i2])
-            if ok:
-                best, arg = sc, c
-        return arg, best
+            out[c] = sc if (f0 >= 0.0) & (f1 >= 0.0) & (f2 >= 0.0) else -np.inf
+        return
     for c in range(n_c):
         sc, feasible = 0.0, True
         for a in range(k):
             cf = inv_rows[a, 0, c] * corr[columns[0, c]]
             for b in range(1, k):
                 cf += inv_rows[a, b, c] * corr[columns[b, c]]
-            feasible = feasible and cf >= 0.0 and not (masked and blocked[columns[a, c]])
+            feasible = feasible and cf >= 0.0
             sc += corr[columns[a, c]] * cf
-        if feasible and sc > best:
-            best, arg = sc, c
+        out[c] = sc if feasible else -np.inf
+
+
+@numba.njit(cache=True)
+def _first_max(scores, columns, blocked, masked):  # pragma: no cover - compiled
+    """(index, value) of the first maximum of scores (0, -inf if all are -inf);
+    ``masked``: tuples with a ``blocked`` atom are skipped."""
+    best, arg = -np.inf, 0
+    for c in range(scores.size):
+        if scores[c] > best:
+            if masked:
+                hit = False
+                for a in range(columns.shape[0]):
+                    hit = hit or blocked[columns[a, c]]
+                if hit:
+                    continue
+            best, arg = scores[c], c
     return arg, best
 
 
 @numba.njit(cache=True)
 def _block_best(corr_t, columns, inv_rows, blocked_t, masked, best, arg):  # pragma: no cover
-    """:func:`_best_tuple` for a block of trials at once, K = 2..4.
+    """:func:`_tuple_scores` and :func:`_first_max` for a block of trials at once, K = 2..4.
 
     corr_t (Mc, B): coarse correlations, one column per trial; blocked_t (Mc, B)
     the blocked atoms per trial (used if ``masked``); best (B,) and arg (B,) are
     updated in tuple order (strictly greater: the first maximum), with the same
-    arithmetic per trial as :func:`_best_tuple`, so the same tuples.
+    arithmetic per trial as :func:`_tuple_scores`, so the same tuples.
     """
     k, n_c = columns.shape
     nb = best.size
@@ -155,16 +159,18 @@ def _write(subset, columns, arg, out_row):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _per_trial(atoms, subset, columns, inv_rows, near, data, out, col, col2):  # pragma: no cover
-    """:func:`tuple_trials` one trial at a time (:func:`_best_tuple`)."""
+    """:func:`tuple_trials` one trial at a time: all scores, then the first maxima."""
     mc = atoms.shape[0]
     corr, blocked = np.empty(mc), np.zeros(mc, np.bool_)
+    scores = np.empty(columns.shape[1])
     for i in range(data.shape[0]):
         _matvec(atoms, data[i], corr)
-        arg, _ = _best_tuple(corr, columns, inv_rows, blocked, False)
+        _tuple_scores(corr, columns, inv_rows, scores)
+        arg, _ = _first_max(scores, columns, blocked, False)
         _write(subset, columns, arg, out[i, col])
-        if col2 >= 0:
+        if col2 >= 0:  # the same scores, tuples with an atom in a basin of the best skipped
             _block(near, columns, arg, blocked)
-            arg2, best2 = _best_tuple(corr, columns, inv_rows, blocked, True)
+            arg2, best2 = _first_max(scores, columns, blocked, True)
             _write(subset, columns, arg2 if best2 > -np.inf else arg, out[i, col2])
 
 
@@ -176,7 +182,7 @@ def tuple_trials(atoms, subset, columns, inv_rows, near, data, out, col,
     out[:, col2] (the first one again if there is none) (tuples.tuple_search).
 
     K = 2..4 in blocks of up to :data:`TUPLE_BLOCK` trials (:func:`_block_best`), other
-    K (and K <= 3 for fewer than 4 trials) one trial at a time (:func:`_best_tuple`);
+    K (and K <= 3 for fewer than 4 trials) one trial at a time (:func:`_per_trial`);
     the same tuples either way.
     """
     k = columns.shape[0]
