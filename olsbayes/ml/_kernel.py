@@ -285,7 +285,7 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
                 lam = max(lam / 5.0, 1e-12)
             if _near(known, n_known, x, tol):
                 return chi2_new, it + 1, True, False
-            j = _known_cell(jt2, known_vis, known_ok, n_known) if kinks and cells else -1
+            j = _known_cell(jt2, known_vis, known_ok, n_known) if cells else -1
             if j >= 0:  # the run would end at that optimum: report it
                 x[:] = known[j]
                 chi2_new = _residual(kind, law, p, nrm, pos, x, s, jt2, r2, False)
