@@ -208,7 +208,7 @@ def tuple_trials(atoms, subset, columns, inv_rows, near, data, out, col,
             _write(subset, columns, args[tb], out[start + tb, col])
         if col2 < 0:
             continue
-        for tb in range(nb):
+        for tb in range(m):  # (lanes >= m hold a previous block's trials: unused)
             _block(near, columns, args[tb], blocked)
             for u in range(mc):
                 blocked_t[u, tb] = blocked[u]
