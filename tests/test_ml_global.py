@@ -1,5 +1,6 @@
 """The fast ML fit's search for the global optimum: second modes of the coarse tuple
-search (K = 3) and LM runs stopped in the linear cell of a known optimum."""
+search (K = 3), LM runs stopped in the linear cell of a known optimum, and K = 4
+against the exact optimum."""
 
 from __future__ import annotations
 
@@ -52,3 +53,23 @@ def test_runs_stopped_in_a_known_cell_change_no_fit(sigma, directions, intensiti
     np.testing.assert_allclose(cells.log_likelihood, full.log_likelihood, rtol=0,
                                atol=1e-10 * model.n_sensors)
     assert cells.n_evaluations.sum() < 0.85 * full.n_evaluations.sum()
+
+
+def test_k4_fast_fit_is_the_exact_ml_whose_mode_jumps_cost_efficiency():
+    """K = 4 (the benchmark's scene, sigma = 0.01): every fast fit reaches the global
+    optimum of fit_exact, and in a share of the draws (~14 % over 1,000) that optimum
+    lies in another cell than the local optimum next to the truth.  Those jumps are why
+    the ML's efficiency there is ~0.8, not 1: a property of the estimator, which no
+    search can change (the benchmark's exact row has the same efficiency)."""
+    from olsbayes.ml import fit_exact
+    from olsbayes.ml.batch import refine_batch
+
+    model = ob.Model(ob.Ring(30), 1e-2)
+    scene = ob.Scene(directions=0.37 + np.radians([0.0, 60.0, 150.0, 260.0]),
+                     intensities=[1.0, 0.87, 0.73, 0.6])
+    data = model.simulate(scene, 1, size=40)
+    best = fit_exact(model, data, 4).log_likelihood
+    assert np.all(fit_ml(model, data, 4, warn=False).log_likelihood >= best - 1e-6)
+    truth = model.canonical(model.pack(scene))
+    local = refine_batch(model, data, np.repeat(truth[None], data.shape[0], axis=0)).x
+    assert np.mean(model.log_likelihood(local, data) < best - 1e-6) > 0.05
