@@ -85,6 +85,8 @@ def test_batch_equals_loop_and_odd_ring():
         assert one.log_likelihood == pytest.approx(batch.log_likelihood[t], abs=1e-12)
     with pytest.raises(InputError, match="batch"):
         batch.scene
+    quick = fit_exact(model, data, 2, count_feasible=False)
+    assert quick.n_feasible is None and np.array_equal(quick.params, batch.params)
 
 
 @pytest.mark.parametrize(
@@ -130,3 +132,8 @@ def test_compiled_scan_equals_numpy_reference(n, k):
         cands_c = sorted(tuple(sorted(st)) for st in states_c[t, : count_c[t]])
         cands_n = sorted(tuple(sorted(st)) for st in states_n[t, : count_n[t]])
         assert cands_c == cands_n
+    # without the feasibility count, configurations that cannot be candidates are not
+    # solved: the same candidates, no count
+    gain_f, states_f, count_f, feas_f, n_f = _exact_kernel.scan(*args, count_feasible=False)
+    assert feas_f is None and n_f == n_c and np.array_equal(count_f, count_c)
+    assert np.array_equal(gain_f, gain_c) and np.array_equal(states_f, states_c)

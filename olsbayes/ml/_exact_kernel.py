@@ -20,54 +20,66 @@ __all__ = ["scan"]
 
 @numba.njit(cache=True)
 def _next_combination(c, n):  # pragma: no cover - compiled
-    """Advance the sorted r-subset c of range(n) in place; False after the last."""
+    """Advance the sorted r-subset c of range(n) in place; returns the first position
+    that changed, -1 after the last subset."""
     r = c.size
     i = r - 1
     while i >= 0 and c[i] == n - r + i:
         i -= 1
     if i < 0:
-        return False
+        return -1
     c[i] += 1
     for j in range(i + 1, r):
         c[j] = c[j - 1] + 1
-    return True
+    return i
 
 
 @numba.njit(cache=True)
-def _factor(gram, idx, p, rtol, low, piv):  # pragma: no cover - compiled
-    """LDL^T of gram[idx, idx] (p x p) into low, piv; False when rank-deficient."""
-    for j in range(p):
-        gjj = gram[idx[j], idx[j]]
-        d = gjj
-        for k in range(j):
-            d -= low[j, k] * low[j, k] * piv[k]
-        if d <= rtol * gjj:
-            return False
-        piv[j] = d
-        for i in range(j + 1, p):
-            acc = gram[idx[i], idx[j]]
+def _factor_rows(gram, idx, r0, p, rtol, low, ud, inv):  # pragma: no cover - compiled
+    """Rows r0..p-1 of the LDL^T of gram[idx, idx] (p x p); the leading r0 rows are
+    those of the previous configuration, which shares idx[:r0].
+
+    low: unit lower factor L, ud = L D (below the diagonal), inv = 1 / D.  Returns
+    the first rank-deficient row (pivot <= rtol times its diagonal entry), or p.
+    """
+    for i in range(r0, p):
+        gi = idx[i]
+        d = gram[gi, gi]
+        for j in range(i):
+            acc = gram[gi, idx[j]]
             for k in range(j):
-                acc -= low[i, k] * low[j, k] * piv[k]
-            low[i, j] = acc / d
-    return True
+                acc -= low[i, k] * ud[j, k]
+            ud[i, j] = acc
+            low[i, j] = acc * inv[j]
+            d -= acc * low[i, j]
+        if d <= rtol * gram[gi, gi]:
+            return i
+        inv[i] = 1.0 / d
+    return p
 
 
 @numba.njit(cache=True)
-def _solve(b, idx, p, low, piv, x):  # pragma: no cover - compiled
-    """x = G^-1 b[idx] for one data vector; returns the gain b^T G^-1 b."""
-    gain = 0.0
-    for i in range(p):
-        z = b[idx[i]]
+def _forward(b, t, idx, r0, p, low, inv, z, gp):  # pragma: no cover - compiled
+    """Gain b^T G^-1 b of data vector t, b = b[t, idx]: forward substitution L z = b
+    from row r0 on; z[t, :r0] and the prefix gains gp[t, :r0 + 1] (gp[t, 0] = 0) are
+    those of the previous configuration, which shares its leading rows."""
+    for i in range(r0, p):
+        zi = b[t, idx[i]]
         for k in range(i):
-            z -= low[i, k] * x[k]
-        x[i] = z
-        gain += z * z / piv[i]
+            zi -= low[i, k] * z[t, k]
+        z[t, i] = zi
+        gp[t, i + 1] = gp[t, i] + zi * zi * inv[i]
+    return gp[t, p]
+
+
+@numba.njit(cache=True)
+def _backward(t, p, low, inv, z, x):  # pragma: no cover - compiled
+    """The LS solution x = L^-T D^-1 z[t] (p,) after :func:`_forward`."""
     for i in range(p):
-        x[i] /= piv[i]
+        x[i] = z[t, i] * inv[i]
     for i in range(p - 2, -1, -1):
         for k in range(i + 1, p):
             x[i] -= low[k, i] * x[k]
-    return gain
 
 
 @numba.njit(cache=True)
@@ -118,38 +130,52 @@ def _offer(t, gain, states, best, margin, cgain, cstate, count):  # pragma: no c
 
 
 @numba.njit(cache=True)
-def _scan_group(gram, b, units, a, q, rtol, ftol, out):  # pragma: no cover - compiled
-    """All configurations of a arcs and q pins; returns their number."""
+def _scan_group(gram, b, units, a, q, rtol, ftol, count_feasible, out):  # pragma: no cover
+    """All configurations of a arcs and q pins; returns their number.
+
+    Consecutive configurations share their leading states (the combinations
+    advance from the back), so only the rows from the first changed one are
+    refactored and re-substituted; while a rank-deficient leading block is
+    unchanged, the configurations are deficient without any arithmetic.
+    """
     best, margin, cgain, cstate, count, n_feas = out
     m, n_t, k = units.shape[0], b.shape[0], cstate.shape[2]
     p = 2 * a + q
     arcs, pins = np.arange(a), np.arange(q)
     idx, states = np.empty(p, np.int64), np.full(k, -1, np.int64)
-    low, piv, x = np.empty((p, p)), np.empty(p), np.empty(p)
-    n = 0
-    more_arcs = True
-    while more_arcs:
+    low, ud, inv, x = np.empty((p, p)), np.empty((p, p)), np.empty(p), np.empty(p)
+    z, gp = np.empty((n_t, p)), np.zeros((n_t, p + 1))
+    n, frow, zrow, arc0 = 0, 0, 0, 0
+    while arc0 >= 0:
         for r in range(a):
             idx[2 * r], idx[2 * r + 1], states[r] = 2 * arcs[r], 2 * arcs[r] + 1, arcs[r]
         pins[:] = np.arange(q)
-        more_pins = True
-        while more_pins:
+        r0 = 2 * arc0  # first row that differs from the previous configuration
+        while r0 >= 0:
             n += 1
             for r in range(q):
                 idx[2 * a + r], states[a + r] = 2 * m + pins[r], m + pins[r]
-            if _factor(gram, idx, p, rtol, low, piv):
-                for t in range(n_t):
-                    gain = _solve(b[t], idx, p, low, piv, x)
-                    if _feasible(x, arcs, a, p, units, ftol):
-                        n_feas[t] += 1
-                        _offer(t, gain, states, best, margin, cgain, cstate, count)
-            more_pins = _next_combination(pins, m)
-        more_arcs = _next_combination(arcs, m)
+            zrow = min(zrow, r0)
+            if r0 <= frow:  # else the deficient leading rows are unchanged
+                frow = _factor_rows(gram, idx, r0, p, rtol, low, ud, inv)
+                if frow == p:
+                    for t in range(n_t):
+                        gain = _forward(b, t, idx, zrow, p, low, inv, z, gp)
+                        if not count_feasible and gain < best[t] - margin[t]:
+                            continue  # _offer would drop it: no solution needed
+                        _backward(t, p, low, inv, z, x)
+                        if _feasible(x, arcs, a, p, units, ftol):
+                            n_feas[t] += 1
+                            _offer(t, gain, states, best, margin, cgain, cstate, count)
+                    zrow = p
+            i = _next_combination(pins, m)
+            r0 = 2 * a + i if i >= 0 else -1
+        arc0 = _next_combination(arcs, m)
     return n
 
 
 def scan(gram: np.ndarray, b: np.ndarray, units: np.ndarray, k: int, margin: np.ndarray,
-         rtol: float, ftol: float, max_candidates: int) -> tuple:
+         rtol: float, ftol: float, max_candidates: int, count_feasible: bool = True) -> tuple:
     """Every configuration of at most k states; near-best feasible ones per trial.
 
     Parameters
@@ -168,6 +194,11 @@ def scan(gram: np.ndarray, b: np.ndarray, units: np.ndarray, k: int, margin: np.
         Rank and feasibility tolerances.
     max_candidates : int
         Candidates kept per trial.
+    count_feasible : bool
+        Count the feasible configurations.  Without the count, the solution and
+        feasibility test of a configuration whose gain is already below the best
+        minus the margin (never a candidate) are skipped: the same candidates,
+        ~1.5x faster.
 
     Returns
     -------
@@ -177,8 +208,9 @@ def scan(gram: np.ndarray, b: np.ndarray, units: np.ndarray, k: int, margin: np.
         Candidate states: arc j -> j, pin j -> M + j, unused -> -1.
     count : ndarray of int, shape (T,)
         Candidates per trial.
-    n_feasible : ndarray of int, shape (T,)
-        Feasible full-rank configurations (the empty one included).
+    n_feasible : ndarray of int, shape (T,), or None
+        Feasible full-rank configurations (the empty one included); None without
+        ``count_feasible``.
     n_configurations : int
         Configurations enumerated (the empty one included).
     """
@@ -192,5 +224,5 @@ def scan(gram: np.ndarray, b: np.ndarray, units: np.ndarray, k: int, margin: np.
     g, bb, u = (np.ascontiguousarray(v, dtype=float) for v in (gram, b, units))
     for a in range(min(k, m) + 1):
         for q in range(1 if a == 0 else 0, min(k - a, m) + 1):
-            n_conf += _scan_group(g, bb, u, a, q, rtol, ftol, out)
-    return cgain, cstate, count, out[5], n_conf
+            n_conf += _scan_group(g, bb, u, a, q, rtol, ftol, bool(count_feasible), out)
+    return cgain, cstate, count, out[5] if count_feasible else None, n_conf

@@ -96,10 +96,11 @@ def fit_ml(
         each refined by L-BFGS-B.
         ``"exact"``: the global optimum by enumerating the likelihood's linear
         cells (:func:`olsbayes.ml.exact.fit_exact`); rings with the clipped
-        cosine and K <= 4 only.  On a 30-ring ~0.3 ms per fit at K = 2 (batched),
-        ~4 ms at K = 3, ~70 ms at K = 4: a reference, and for close sources at
-        K = 4 (at K = 2, 3 the fast method already refits fits with close or
-        lopsided sources this way, :mod:`olsbayes.ml.pairs`).  Its
+        cosine and K <= 4 only.  On a 30-ring ~0.2 ms per fit at K = 2, ~1.1 ms
+        at K = 3, ~15 ms at K = 4 (per data vector in a batch of 20: 0.09, 0.26,
+        2.6 ms): a reference, and for close sources at K = 4 (at K = 2, 3 the fast method
+        already refits fits with close or lopsided sources this way,
+        :mod:`olsbayes.ml.pairs`).  Its
         ``n_evaluations`` counts the configurations solved.
     rng : Generator, int or None
         Randomness of the multistart starts.  ``"fast"`` is deterministic and
@@ -162,7 +163,7 @@ def fit_ml(
 
 def _exact(model: Model, s: np.ndarray, k: int) -> LMOutcome:
     """fit_exact as an LM outcome (converged by construction; evaluations = configurations)."""
-    ex = fit_exact(model, s, k)
+    ex = fit_exact(model, s, k, count_feasible=False)
     t = s.shape[0]
     chi2 = np.sum((s - model.response(ex.params)) ** 2, axis=-1)
     return LMOutcome(ex.params, chi2, np.ones(t, dtype=bool),

@@ -10,8 +10,8 @@ at <= 1 spacing); the ML error over resolvable placements at 1.25 spacings,
 sigma = 1e-4, was 0.078 rad instead of the CRLB's 8.3e-5 that the global
 optimum reaches.  Every miss had two fitted sources closer than 4 spacings or
 an intensity below 1 % of the largest, so exactly those fits are refitted by
-enumeration (K = 2 ~0.3 ms, K = 3 ~2.5 ms each); well-separated scenes (Fig. 3,
-the benchmark's K = 3) are not touched.
+enumeration (~0.1-0.2 ms at K = 2 and ~0.3-1.1 ms at K = 3 per fit, batched or
+alone); well-separated scenes (Fig. 3, the benchmark's K = 3) are not touched.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ CLOSE_SPACINGS = 4.0
 WEAK_RATIO = 0.01
 
 
-#: Numbers of sources escalated (the enumeration costs ~0.3 ms at K = 2, ~2.5 ms at
-#: K = 3, ~35-70 ms at K = 4 on a 30-ring).
+#: Numbers of sources escalated (the enumeration costs, batched | alone, ~0.09 | 0.23 ms
+#: at K = 2, ~0.26 | 1.1 ms at K = 3, ~2.6 | 15 ms at K = 4 on a 30-ring).
 SOURCES = (2, 3)
 
 
@@ -62,7 +62,7 @@ def exact_pairs(model: Model, data: np.ndarray, out: LMOutcome) -> LMOutcome:
     rows = np.flatnonzero(_checks_kernel.close_or_weak(x, close, WEAK_RATIO))
     if rows.size == 0:
         return out
-    ex = np.atleast_2d(fit_exact(model, data[rows], k).params)
+    ex = np.atleast_2d(fit_exact(model, data[rows], k, count_feasible=False).params)
     chi2 = np.sum((data[rows] - model.response(ex)) ** 2, axis=-1)
     better = chi2 < out.chi2[rows] * (1 - 1e-12)
     sel = rows[better]
