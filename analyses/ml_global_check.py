@@ -56,7 +56,7 @@ def run_k(model: ob.Model, k: int, args: argparse.Namespace, seq: np.random.Seed
         data = model.simulate(random_scene(rng, k, np.radians(args.min_sep)), rng,
                               size=args.draws)
         fits = (
-            ("exact", lambda: fit_exact(model, data, k)),
+            ("exact", lambda: fit_exact(model, data, k, count_feasible=False)),
             ("fast", lambda: fit_ml(model, data, k)),
             ("multistart", lambda: fit_ml(model, data, k, method="multistart",
                                           rng=args.seed + 1000 * k + i, n_starts=20)),
