@@ -32,21 +32,22 @@ optimum, by enumerating the ring's linear cells).  The exact row is the
 reference for the global-optimum share, and its efficiency is that of the ML
 estimator itself: where it is below 1 (K = 4 at sigma = 1e-2, where another
 cell's optimum beats the one near the truth in ~14 % of draws), no search can do
-better.  The single fits of ``fast`` and ``multistart`` alternate in blocks of ``--block``
-data vectors (10), so both see the same machine load with warm caches, as in a
-user's loop of fits; ``--block 1`` alternates every fit (each fast fit then
-starts with the caches a multistart fit left, ~2x its warm time).
+better.  The single fits of ``fast`` and ``multistart`` alternate in blocks of
+``--block`` data vectors (10), so both see the same machine load with warm
+caches, as in a user's loop of fits; ``--block 1`` alternates every fit (each
+fast fit then starts with the caches a multistart fit left, ~2x its warm time).
 
 Per method and setting: efficiency per parameter (CRLB variance / mean squared
 error), failure rate (some parameter off by more than 5 CRLB std), the share of
-fits reaching the best optimum any method (the exact one, or an LM run started at
-the truth) found -- to within 1e-6 and 1e-3 in log-likelihood -- and the median time per fit,
-as CPU time of this process (``time.process_time``) and wall-clock time.  Then the
-speed ratios.  CPU time is the primary measure: the machine is shared, and
-wall-clock times include waiting for a core, which depends on other processes'
-load.  Run ``python benchmarks/ml_speed_accuracy.py`` (quick, a few minutes) or
-``--full`` (T = T_ms = 1000).  BLAS threads are pinned to 1 so that timings on a
-shared machine measure the algorithms, not thread contention.
+fits reaching the best optimum any method (the exact one, or an LM run started
+at the truth) found -- to within 1e-6 and 1e-3 in log-likelihood -- and the
+median time per fit, as CPU time of this process (``time.process_time``) and
+wall-clock time.  Then the speed ratios.  CPU time is the primary measure: the
+machine is shared, and wall-clock times include waiting for a core, which
+depends on other processes' load.  Run ``python benchmarks/ml_speed_accuracy.py``
+(quick, a few minutes) or ``--full`` (T = T_ms = 1000).  BLAS threads are pinned
+to 1 so that timings on a shared machine measure the algorithms, not thread
+contention.
 """
 
 from __future__ import annotations

@@ -198,7 +198,8 @@ def scan(gram: np.ndarray, b: np.ndarray, units: np.ndarray, k: int, margin: np.
         Count the feasible configurations.  Without the count, the solution and
         feasibility test of a configuration whose gain is already below the best
         minus the margin (never a candidate) are skipped: the same candidates,
-        ~1.5x faster.
+        ~2x faster for one data vector and ~5x per vector in a batch (30-ring,
+        K = 3, 4).
 
     Returns
     -------
