@@ -52,12 +52,13 @@ the same.  Consecutive configurations share their leading states, so the
 compiled scan refactors and re-substitutes only the rows from the first changed
 state on, and a configuration whose gain is already below the best so far is not
 solved (unless feasible configurations are counted).  Measured on a 30-ring, per
-data vector, alone | in a batch of 20: K = 2 0.23 | 0.09 ms, K = 3 1.1 | 0.26 ms,
+data vector, alone | in a batch of 20: K = 2 0.16 | 0.06 ms, K = 3 1.1 | 0.26 ms,
 K = 4 15 | 2.6 ms (with the count: 0.3 | 0.14, 2.0 | 1.1, 27 | 14 ms).
 """
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -157,6 +158,24 @@ def crossing_angles(ring: Ring) -> np.ndarray:
     return c
 
 
+_DESIGNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _scan_design(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_design` (c, cols), the states' Gram matrix cols' cols and the crossing
+    directions (M, 2) of a model, cached per model (its array never changes).
+
+    Private and never written: writeable arrays, so that the compiled scan sees one
+    array type whoever calls it.
+    """
+    hit = _DESIGNS.get(model)
+    if hit is None:
+        c, cols = _design(model)
+        hit = _DESIGNS[model] = (c, cols, cols.T @ cols,
+                                 np.column_stack([np.cos(c), np.sin(c)]))
+    return hit
+
+
 def _design(model: Model) -> tuple[np.ndarray, np.ndarray]:
     """Crossings c (M,) and state columns B (N, 3M): arc j at 2j, 2j+1, pin j at 2M + j.
 
@@ -202,16 +221,14 @@ def _best_params(model: Model, c: np.ndarray, cols: np.ndarray, s: np.ndarray,
     condition number) and scored with ``model.log_likelihood`` on s (N,).
     """
     m, k = c.size, states.shape[1]
-    best_x, best_ll = np.zeros(2 * k), float(model.log_likelihood(np.zeros(2 * k), s))
+    xs = [np.zeros(2 * k)]  # no source: the first of equal maxima wins
     for st in states:
         arcs, pins = st[(st >= 0) & (st < m)], st[st >= m] - m
         idx = np.concatenate([np.stack([2 * arcs, 2 * arcs + 1], -1).ravel(), 2 * m + pins])
         sol = np.linalg.lstsq(cols[:, idx], s, rcond=None)[0]
-        x = _params(c, arcs, pins, sol, k)
-        ll = float(model.log_likelihood(x, s))
-        if ll > best_ll:
-            best_x, best_ll = x, ll
-    return best_x
+        xs.append(_params(c, arcs, pins, sol, k))
+    xs = np.array(xs)
+    return xs[int(np.argmax(model.log_likelihood(xs, s)))]
 
 
 def _params(c: np.ndarray, arcs: np.ndarray, pins: np.ndarray, x: np.ndarray,
@@ -268,11 +285,10 @@ def fit_exact(model: Model, data: np.ndarray, n_sources: int, *,
     s, k = _check(model, data, n_sources)
     from . import _exact_kernel  # numba is imported on first use, not with the package
 
-    c, cols = _design(model)
-    units = np.column_stack([np.cos(c), np.sin(c)])
+    c, cols, gram, units = _scan_design(model)
     margin = RERANK_RTOL * np.einsum("tn,tn->t", s, s)
     _, cstate, count, n_feas, n_conf = _exact_kernel.scan(
-        cols.T @ cols, s @ cols, units, k, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES,
+        gram, s @ cols, units, k, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES,
         count_feasible)
     x = np.array([_best_params(model, c, cols, s[t], cstate[t, : count[t]])
                   for t in range(s.shape[0])])
