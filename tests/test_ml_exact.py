@@ -113,7 +113,7 @@ def test_bad_data():
             fit_exact(model, bad, 1)
 
 
-@pytest.mark.parametrize("n, k", [(8, 3), (11, 2), (30, 2)])
+@pytest.mark.parametrize("n, k", [(8, 3), (11, 2), (30, 2), (7, 3), (10, 4)])
 def test_compiled_scan_equals_numpy_reference(n, k):
     from olsbayes.ml import _exact_kernel, _exact_numpy
     from olsbayes.ml.exact import FEAS_RTOL, RANK_RTOL, RERANK_RTOL, _design
