@@ -11,7 +11,8 @@ Also reported: the share of exact optima with a source on a sub-sensor horizon
 
 Usage: ``python analyses/ml_global_check.py [--ks 2 3] [--scenes 40] [--draws 10]``
 (~25 s for the defaults, most of it multistart; the exact fit costs ~0.3 ms per
-draw at K = 3 and ~3 ms at K = 4 on a 30-ring, in batches of ``--draws``).  The table is printed and written to ``--out``.
+draw at K = 3 and ~3 ms at K = 4 on a 30-ring, in batches of ``--draws``).  The
+table is printed and written to ``--out``.
 """
 
 from __future__ import annotations

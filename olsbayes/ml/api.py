@@ -96,8 +96,8 @@ def fit_ml(
         each refined by L-BFGS-B.
         ``"exact"``: the global optimum by enumerating the likelihood's linear
         cells (:func:`olsbayes.ml.exact.fit_exact`); rings with the clipped
-        cosine and K <= 4 only.  On a 30-ring ~0.16 ms per fit at K = 2, ~1.1 ms
-        at K = 3, ~15 ms at K = 4 (per data vector in a batch of 20: 0.06, 0.26,
+        cosine and K <= 4 only.  On a 30-ring ~0.19 ms per fit at K = 2, ~1.1 ms
+        at K = 3, ~15 ms at K = 4 (per data vector in a batch of 20: 0.02, 0.21,
         2.6 ms): a reference, and for close sources at K = 4 (at K = 2, 3 the fast method
         already refits fits with close or lopsided sources this way,
         :mod:`olsbayes.ml.pairs`).  Its

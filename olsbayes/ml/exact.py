@@ -40,7 +40,10 @@ sine between a column and the span of the earlier ones): structurally singular
 configurations give <~1e-12, full-rank ones >~1e-4 (measured on rings of 3..64
 sub-sensors, all configurations up to K = 3).  The normal equations rank
 configurations only to ~eps cond(G) |s|^2 in chi^2, so the near-best ones are
-re-solved by ``lstsq`` and scored by ``model.log_likelihood`` directly.
+re-solved through a QR factorisation of their columns and scored by
+``model.log_likelihood`` directly.  Where several configurations give the same
+likelihood to rounding (a scene the array cannot identify, e.g. K = 4 on a
+16-ring), which of those equal optima is returned is a matter of rounding.
 
 Cost.  sum_{a + q <= K} C(M, a) C(M, q) = sum_{k <= K} C(2M, k)
 configurations of a arcs and q pins, M = N crossings on an even ring, 2N on an
@@ -52,8 +55,8 @@ the same.  Consecutive configurations share their leading states, so the
 compiled scan refactors and re-substitutes only the rows from the first changed
 state on, and a configuration whose gain is already below the best so far is not
 solved (unless feasible configurations are counted).  Measured on a 30-ring, per
-data vector, alone | in a batch of 20: K = 2 0.16 | 0.06 ms, K = 3 1.1 | 0.26 ms,
-K = 4 15 | 2.6 ms (with the count: 0.3 | 0.14, 2.0 | 1.1, 27 | 14 ms).
+data vector, alone | in a batch of 20: K = 2 0.19 | 0.02 ms, K = 3 1.1 | 0.21 ms,
+K = 4 15 | 2.6 ms (with the count: 0.28 | 0.09, 2.1 | 1.1, 28 | 14 ms).
 """
 
 from __future__ import annotations
@@ -213,39 +216,62 @@ def _check(model: object, data: object, n_sources: object) -> tuple[np.ndarray, 
 
 
 def _best_params(model: Model, c: np.ndarray, cols: np.ndarray, s: np.ndarray,
-                 states: np.ndarray) -> np.ndarray:
-    """Flat parameters (2K,) of the candidate with the largest direct log L.
+                 cstate: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per data vector, the canonical parameters (T, 2K) of its candidate with the
+    largest direct log L, and that log L (T,); no source (all zeros) wins ties.
 
-    ``states`` (n, K): candidate configurations (arc j -> j, pin j -> M + j,
-    absent -> -1).  Each LS problem is re-solved by ``lstsq`` (no squared
-    condition number) and scored with ``model.log_likelihood`` on s (N,).
+    ``cstate`` (T, C, K): candidate configurations (arc j -> j, pin j -> M + j,
+    absent -> -1), the first ``count`` (T,) of each row.  Each LS problem is
+    re-solved through a QR factorisation of its columns (no squared condition
+    number), batched over the candidates of all vectors with the same numbers of
+    arcs and pins, and scored with ``model.log_likelihood``.
     """
-    m, k = c.size, states.shape[1]
-    xs = [np.zeros(2 * k)]  # no source: the first of equal maxima wins
-    for st in states:
-        arcs, pins = st[(st >= 0) & (st < m)], st[st >= m] - m
-        idx = np.concatenate([np.stack([2 * arcs, 2 * arcs + 1], -1).ravel(), 2 * m + pins])
-        sol = np.linalg.lstsq(cols[:, idx], s, rcond=None)[0]
-        xs.append(_params(c, arcs, pins, sol, k))
-    xs = np.array(xs)
-    return xs[int(np.argmax(model.log_likelihood(xs, s)))]
+    n_t, n_c, k = cstate.shape
+    rows, slot = np.nonzero(np.arange(n_c)[None, :] < count[:, None])
+    states = cstate[rows, slot]  # (n, K)
+    m = c.size
+    group = np.sum((states >= 0) & (states < m), axis=1) * (k + 1) + np.sum(states >= m, axis=1)
+    cand = np.zeros((n_t + states.shape[0], 2 * k))  # first n_t rows: no source
+    for g in np.unique(group[group > 0]):
+        sel = np.flatnonzero(group == g)
+        a, q = divmod(int(g), k + 1)
+        cand[n_t + sel] = _group_params(c, cols, s[rows[sel]], states[sel, :a],
+                                        states[sel, a : a + q] - m, k)
+    cand = model.canonical(cand)
+    ll = np.full((n_t, n_c + 1), -np.inf)
+    ll_all = model.log_likelihood(cand, s[np.concatenate([np.arange(n_t), rows])])
+    ll[:, 0], ll[rows, slot + 1] = ll_all[:n_t], ll_all[n_t:]
+    best = np.argmax(ll, axis=1)
+    pick = np.where(best == 0, np.arange(n_t), n_t + np.searchsorted(rows, np.arange(n_t))
+                    + best - 1)
+    return cand[pick], ll[np.arange(n_t), best]
 
 
-def _params(c: np.ndarray, arcs: np.ndarray, pins: np.ndarray, x: np.ndarray,
-            k: int) -> np.ndarray:
-    """Flat parameters (2K,) of a configuration's solution; absent sources [0, 0]."""
-    out = np.zeros((k, 2))
-    width = np.diff(np.append(c, c[0] + TWO_PI))
-    for r, j in enumerate(arcs):
-        px, py = x[2 * r], x[2 * r + 1]
-        off = np.mod(np.arctan2(py, px) - c[j], TWO_PI)
-        if off > width[j]:  # within the feasibility slack outside: nearest end
-            off = 0.0 if off > width[j] + 0.5 * (TWO_PI - width[j]) else width[j]
-        out[r] = c[j] + off, np.hypot(px, py)
-    for i, j in enumerate(pins):
-        out[len(arcs) + i] = c[j], max(x[2 * len(arcs) + i], 0.0)
-    out[:, 0] = wrap_angle(out[:, 0])
-    return out.ravel()
+def _group_params(c: np.ndarray, cols: np.ndarray, s: np.ndarray, arcs: np.ndarray,
+                  pins: np.ndarray, k: int) -> np.ndarray:
+    """Flat parameters (n, 2K) of n configurations of a arcs (n, a) and q pins (n, q)
+    fitted to s (n, N); absent sources [0, 0].
+
+    An arc phasor within the feasibility slack outside its arc goes to the
+    nearest end.
+    """
+    m, a = c.size, arcs.shape[1]
+    idx = np.concatenate([np.stack([2 * arcs, 2 * arcs + 1], -1).reshape(len(arcs), -1),
+                          2 * m + pins], axis=1)  # (n, p)
+    qm, rm = np.linalg.qr(np.swapaxes(cols.T[idx], 1, 2))  # (n, N, p), (n, p, p)
+    sol = np.linalg.solve(rm, np.einsum("inp,in->ip", qm, s)[..., None])[..., 0]
+    out = np.zeros((len(arcs), k, 2))
+    width = np.diff(np.append(c, c[0] + TWO_PI))[arcs]  # (n, a)
+    px, py = sol[:, 0 : 2 * a : 2], sol[:, 1 : 2 * a : 2]
+    off = np.mod(np.arctan2(py, px) - c[arcs], TWO_PI)
+    out_of_arc = off > width
+    off = np.where(out_of_arc & (off > width + 0.5 * (TWO_PI - width)), 0.0,
+                   np.where(out_of_arc, width, off))
+    out[:, :a, 0], out[:, :a, 1] = c[arcs] + off, np.hypot(px, py)
+    out[:, a : a + pins.shape[1], 0] = c[pins]
+    out[:, a : a + pins.shape[1], 1] = np.maximum(sol[:, 2 * a :], 0.0)
+    out[..., 0] = wrap_angle(out[..., 0])
+    return out.reshape(len(arcs), 2 * k)
 
 
 def fit_exact(model: Model, data: np.ndarray, n_sources: int, *,
@@ -290,10 +316,7 @@ def fit_exact(model: Model, data: np.ndarray, n_sources: int, *,
     _, cstate, count, n_feas, n_conf = _exact_kernel.scan(
         gram, s @ cols, units, k, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES,
         count_feasible)
-    x = np.array([_best_params(model, c, cols, s[t], cstate[t, : count[t]])
-                  for t in range(s.shape[0])])
-    x = model.canonical(x)
-    ll = model.log_likelihood(x, s)
+    x, ll = _best_params(model, c, cols, s, cstate, count)
     batch = np.ndim(data) == 2
     sel = (lambda v: v) if batch else (lambda v: v[0])
     return ExactResult(params=sel(x), log_likelihood=sel(ll), n_configurations=int(n_conf),

@@ -10,7 +10,7 @@ at <= 1 spacing); the ML error over resolvable placements at 1.25 spacings,
 sigma = 1e-4, was 0.078 rad instead of the CRLB's 8.3e-5 that the global
 optimum reaches.  Every miss had two fitted sources closer than 4 spacings or
 an intensity below 1 % of the largest, so exactly those fits are refitted by
-enumeration (~0.06-0.16 ms at K = 2 and ~0.3-1.1 ms at K = 3 per fit, batched or
+enumeration (~0.02-0.19 ms at K = 2 and ~0.2-1.1 ms at K = 3 per fit, batched or
 alone); well-separated scenes (Fig. 3, the benchmark's K = 3) are not touched.
 """
 
@@ -32,8 +32,8 @@ CLOSE_SPACINGS = 4.0
 WEAK_RATIO = 0.01
 
 
-#: Numbers of sources escalated (the enumeration costs, batched | alone, ~0.06 | 0.16 ms
-#: at K = 2, ~0.26 | 1.1 ms at K = 3, ~2.6 | 15 ms at K = 4 on a 30-ring).
+#: Numbers of sources escalated (the enumeration costs, batched | alone, ~0.02 | 0.19 ms
+#: at K = 2, ~0.21 | 1.1 ms at K = 3, ~2.6 | 15 ms at K = 4 on a 30-ring).
 SOURCES = (2, 3)
 
 
