@@ -84,11 +84,13 @@ def _block_best(corr_t, columns, inv_rows, blocked_t, masked, best, arg):  # pra
 
     corr_t (Mc, B): coarse correlations, one column per trial; blocked_t (Mc, B)
     the blocked atoms per trial (used if ``masked``); best (B,) and arg (B,) are
-    updated in tuple order (strictly greater: the first maximum), with the same
-    arithmetic per trial as :func:`_tuple_scores`, so the same tuples.
+    reset (-inf, 0) and set in tuple order (strictly greater: the first maximum), with
+    the same arithmetic per trial as :func:`_tuple_scores`, so the same tuples.
     """
     k, n_c = columns.shape
     nb = best.size
+    best[:] = -np.inf
+    arg[:] = 0
     for c in range(n_c):
         i0, i1 = columns[0, c], columns[1, c]
         if k == 2:
@@ -201,8 +203,6 @@ def tuple_trials(atoms, subset, columns, inv_rows, near, data, out, col,
             _matvec(atoms, data[start + tb], corr)
             for u in range(mc):
                 corr_t[u, tb] = corr[u]
-        best[:] = -np.inf
-        args[:] = 0
         _block_best(corr_t, columns, inv_rows, blocked_t, False, best, args)
         for tb in range(m):
             _write(subset, columns, args[tb], out[start + tb, col])
@@ -212,8 +212,6 @@ def tuple_trials(atoms, subset, columns, inv_rows, near, data, out, col,
             _block(near, columns, args[tb], blocked)
             for u in range(mc):
                 blocked_t[u, tb] = blocked[u]
-        best2[:] = -np.inf
-        args2[:] = 0
         _block_best(corr_t, columns, inv_rows, blocked_t, True, best2, args2)
         for tb in range(m):
             arg = args2[tb] if best2[tb] > -np.inf else args[tb]

@@ -164,9 +164,10 @@ def crossing_angles(ring: Ring) -> np.ndarray:
 _DESIGNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _scan_design(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_design` (c, cols), the states' Gram matrix cols' cols and the crossing
-    directions (M, 2) of a model, cached per model (its array never changes).
+def _scan_design(model: Model) -> tuple[np.ndarray, ...]:
+    """:func:`_design` (c, cols), the states' Gram matrix cols' cols, the crossing
+    directions (M, 2) and the arc widths (M,) of a model, cached per model (its array
+    never changes).
 
     Private and never written: writeable arrays, so that the compiled scan sees one
     array type whoever calls it.
@@ -175,7 +176,7 @@ def _scan_design(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     if hit is None:
         c, cols = _design(model)
         hit = _DESIGNS[model] = (c, cols, cols.T @ cols,
-                                 np.column_stack([np.cos(c), np.sin(c)]))
+                                 np.column_stack([np.cos(c), np.sin(c)]), _widths(c))
     return hit
 
 
@@ -186,7 +187,7 @@ def _design(model: Model) -> tuple[np.ndarray, np.ndarray]:
     """
     c = crossing_angles(model.array)
     t = np.asarray(model.array.angles)
-    width = np.diff(np.append(c, c[0] + TWO_PI))
+    width = _widths(c)
     vis = (np.cos((c + width / 2)[None, :] - t[:, None]) > 0).astype(float)  # (N, M)
     cols = np.empty((t.size, 3 * c.size))
     cols[:, 0 : 2 * c.size : 2] = vis * np.cos(t)[:, None]
@@ -215,8 +216,14 @@ def _check(model: object, data: object, n_sources: object) -> tuple[np.ndarray, 
     return (arr if arr.ndim == 2 else arr[None, :]), k
 
 
-def _best_params(model: Model, c: np.ndarray, cols: np.ndarray, s: np.ndarray,
-                 cstate: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _widths(c: np.ndarray) -> np.ndarray:
+    """Widths (M,) of the arcs from crossing c[j] to c[j + 1] (cyclic), rad."""
+    return np.diff(np.append(c, c[0] + TWO_PI))
+
+
+def _best_params(model: Model, c: np.ndarray, width: np.ndarray, cols: np.ndarray,
+                 s: np.ndarray, cstate: np.ndarray,
+                 count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per data vector, the canonical parameters (T, 2K) of its candidate with the
     largest direct log L, and that log L (T,); no source (all zeros) wins ties.
 
@@ -235,7 +242,7 @@ def _best_params(model: Model, c: np.ndarray, cols: np.ndarray, s: np.ndarray,
     for g in np.unique(group[group > 0]):
         sel = np.flatnonzero(group == g)
         a, q = divmod(int(g), k + 1)
-        cand[n_t + sel] = _group_params(c, cols, s[rows[sel]], states[sel, :a],
+        cand[n_t + sel] = _group_params(c, width, cols, s[rows[sel]], states[sel, :a],
                                         states[sel, a : a + q] - m, k)
     cand = model.canonical(cand)
     ll = np.full((n_t, n_c + 1), -np.inf)
@@ -247,8 +254,8 @@ def _best_params(model: Model, c: np.ndarray, cols: np.ndarray, s: np.ndarray,
     return cand[pick], ll[np.arange(n_t), best]
 
 
-def _group_params(c: np.ndarray, cols: np.ndarray, s: np.ndarray, arcs: np.ndarray,
-                  pins: np.ndarray, k: int) -> np.ndarray:
+def _group_params(c: np.ndarray, width: np.ndarray, cols: np.ndarray, s: np.ndarray,
+                  arcs: np.ndarray, pins: np.ndarray, k: int) -> np.ndarray:
     """Flat parameters (n, 2K) of n configurations of a arcs (n, a) and q pins (n, q)
     fitted to s (n, N); absent sources [0, 0].
 
@@ -261,7 +268,7 @@ def _group_params(c: np.ndarray, cols: np.ndarray, s: np.ndarray, arcs: np.ndarr
     qm, rm = np.linalg.qr(np.swapaxes(cols.T[idx], 1, 2))  # (n, N, p), (n, p, p)
     sol = np.linalg.solve(rm, np.einsum("inp,in->ip", qm, s)[..., None])[..., 0]
     out = np.zeros((len(arcs), k, 2))
-    width = np.diff(np.append(c, c[0] + TWO_PI))[arcs]  # (n, a)
+    width = width[arcs]  # (n, a)
     px, py = sol[:, 0 : 2 * a : 2], sol[:, 1 : 2 * a : 2]
     off = np.mod(np.arctan2(py, px) - c[arcs], TWO_PI)
     out_of_arc = off > width
@@ -311,12 +318,12 @@ def fit_exact(model: Model, data: np.ndarray, n_sources: int, *,
     s, k = _check(model, data, n_sources)
     from . import _exact_kernel  # numba is imported on first use, not with the package
 
-    c, cols, gram, units = _scan_design(model)
+    c, cols, gram, units, width = _scan_design(model)
     margin = RERANK_RTOL * np.einsum("tn,tn->t", s, s)
     _, cstate, count, n_feas, n_conf = _exact_kernel.scan(
         gram, s @ cols, units, k, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES,
         count_feasible)
-    x, ll = _best_params(model, c, cols, s, cstate, count)
+    x, ll = _best_params(model, c, width, cols, s, cstate, count)
     batch = np.ndim(data) == 2
     sel = (lambda v: v) if batch else (lambda v: v[0])
     return ExactResult(params=sel(x), log_likelihood=sel(ll), n_configurations=int(n_conf),
