@@ -265,7 +265,9 @@ def grid_search_numpy(
         Maximum alternating-projection sweeps.
     n_coarse : int
         For K >= 2, number of differently placed coarse atom subsets whose best
-        K-tuple (:mod:`olsbayes.ml.tuples`) is one more candidate.
+        K-tuple (:mod:`olsbayes.ml.tuples`) is one more candidate (subsets that
+        coincide, or have no full-rank K-tuple, count once or not at all:
+        ``n_p <= n_coarse`` plans, :func:`~olsbayes.ml.tuples.tuple_plans`).
     budget : int
         Cap on the number of K-tuples per coarse subset (sets its size).
     n_alt : int
@@ -278,7 +280,7 @@ def grid_search_numpy(
     Returns
     -------
     idx : ndarray of int, shape (T, C, K)
-        C = 1 + K n_alt + (n_coarse (2 if distinct else 1) if K >= 2 else 0) candidate
+        C = 1 + K n_alt + (n_p (2 if distinct else 1) if K >= 2 else 0) candidate
         atom sets per trial: the best tuples of the subsets, then their second modes.
     intensity : ndarray, shape (T, C, K)
         Their least-squares intensities, clipped at 0.

@@ -110,6 +110,10 @@ def _digest(g: np.ndarray) -> str:
 def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET) -> list:
     """Tuple-search plans for ``n_sets`` coarse subsets of the atoms g (cached).
 
+    Farthest-point subsets seeded at different atoms can coincide (24 subsets of
+    a 128-atom ring grid at K = 4: 21 distinct); a repeated subset would only
+    repeat its best tuple and that tuple's LM run, so each is planned once.
+
     The plans depend only on the atoms, K, ``n_sets`` and ``budget``, so repeated
     single fits with one model reuse them (an LRU cache of 16 entries keyed by a
     hash of the atoms, computed once per read-only atom array).
@@ -121,7 +125,11 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET) 
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
-    plans = [_plan(g, sub, k) for sub in coarse_subsets(g, size, n_sets)]
+    subsets: list[np.ndarray] = []
+    for sub in coarse_subsets(g, size, n_sets):  # identical subsets give identical tuples
+        if not any(np.array_equal(sub, u) for u in subsets):
+            subsets.append(sub)
+    plans = [_plan(g, sub, k) for sub in subsets]
     plans = [p for p in plans if p.combos.shape[0]]  # no K-tuple of full rank
     _CACHE[key] = plans
     while len(_CACHE) > _CACHE_SIZE:
