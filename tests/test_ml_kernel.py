@@ -367,6 +367,20 @@ def test_kink_cuts_same_best_fewer_evaluations():
     assert cut.n_evaluations.sum() < 0.5 * plain.n_evaluations.sum()
 
 
+def test_tuple_plans_each_distinct_subset_once():
+    """The farthest-point subsets requested (24 at K = 4 on a 30-ring's default grid,
+    some of them coinciding) are all planned, each distinct one exactly once."""
+    from olsbayes.ml.grid import atoms, cached_default_grid
+    from olsbayes.ml.tuples import coarse_size, coarse_subsets, tuple_plans
+
+    model = ob.Model(ob.Ring(30), 0.01)
+    g = atoms(model, cached_default_grid(model))
+    requested = coarse_subsets(g, coarse_size(*g.shape, 4), 24)
+    planned = [tuple(p.subset) for p in tuple_plans(g, 4, 24)]
+    assert len(planned) == len(set(planned))
+    assert set(planned) == {tuple(s) for s in requested}
+
+
 @pytest.mark.parametrize("k", [2, 3, 4])
 def test_blocked_tuple_search_equals_per_trial(k):
     """Tuple search over blocks of trials (K = 2..4) == one trial at a time, exactly,

@@ -114,7 +114,7 @@ def fit_ml(
     n_restarts, restart_scale : int, float
         Fast: number of perturbed restarts and their size in grid steps.
     n_coarse : int, optional
-        Fast, K >= 2: number of interleaved coarse atom subsets searched
+        Fast, K >= 2: number of differently placed coarse atom subsets searched
         exhaustively over K-tuples (each adds one candidate start; 0 = pursuit only).
         Default 3 for K <= 3 and 24 from K = 4 on, where three left 6-7 % of fits
         of random scenes short of the global optimum

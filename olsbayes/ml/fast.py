@@ -5,8 +5,8 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
 1. :func:`~olsbayes.ml.search.grid_search` -- candidate atom sets on a grid of
    unit-intensity atoms: matching pursuit + alternating projection, runner-up
    positions of each source (:func:`default_runners_up`), and for K >= 2 the
-   best K-tuple of each of ``n_coarse`` interleaved coarse subsets (exhaustive,
-   :mod:`~olsbayes.ml.tuples`; 3 subsets, 24 from K = 4 on:
+   best K-tuple of each of ``n_coarse`` differently placed coarse subsets
+   (exhaustive, :mod:`~olsbayes.ml.tuples`; 3 subsets, 24 from K = 4 on:
    :func:`default_coarse`); for K = 3 also each subset's best tuple of a
    second, distinct mode (:data:`DISTINCT_SOURCES`).  Cost O(T M N K^2) per
    sweep plus O(T C(M_c, K) K^2) with C(M_c, K) capped.
@@ -102,7 +102,7 @@ def default_coarse(k: int) -> int:
     (the tuple budget), the likelihood has many shallow cells, and near-ambiguous
     configurations far apart in angle compete: with 3 subsets 6-7 % of such fits
     stopped short of the truth's basin (by up to ~60 in log-likelihood; 20
-    multistart starts: 3.5 %).  24 interleaved subsets cut that to 0.08-0.10 %
+    multistart starts: 3.5 %).  24 differently placed subsets cut that to 0.08-0.10 %
     (two independent sets of 40 x 300 and 80 x 200 scenes) for 2.4x the time.
     """
     return COARSE_SETS[0] if k <= 3 else COARSE_SETS[1]

@@ -43,8 +43,13 @@ def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1) -> list[np.ndarray
     """``n_sets`` subsets of ``size`` atoms, each spread evenly over the response manifold.
 
     Farthest-point sampling on the unit-normalised atoms (rows of g, shape
-    (M, N)), subset j seeded at the live atom of rank ``j * M_live / n_sets``, so
-    the subsets interleave (on a ring: grids shifted by a fraction of a step).
+    (M, N)), subset j seeded at the live atom of rank ``j * M_live / n_sets``.
+    The subsets differ in placement but are not regular shifted grids: on a
+    30-ring's 128-atom grid with 20 atoms per subset their gaps range from about
+    11 to 25 deg, and 3 of 24 seeds give a subset another seed gave
+    (:func:`tuple_plans` plans each once).  Regular grids would do worse: 24
+    shifted 20-atom grids left 1.75 % of 800 fits of random K = 4 scenes
+    (sigma = 0.01) short of the exact optimum, these subsets none.
     Atoms with zero response (sources no sub-sensor sees) are skipped.
     """
     norm = np.linalg.norm(g, axis=1)
