@@ -9,7 +9,7 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
    (exhaustive, :mod:`~olsbayes.ml.tuples`; 3 subsets, 24 from K = 4 on:
    :func:`default_coarse`); for K = 3 also each subset's best tuple of a
    second, distinct mode (:data:`DISTINCT_SOURCES`).  Cost O(T M N K^2) per
-   sweep plus O(T C(M_c, K) K^2) with C(M_c, K) capped.
+   sweep plus O(T C(M_c, K) K) with C(M_c, K) capped.
 2. :func:`~olsbayes.ml.batch.refine_batch` -- one joint bounded
    Levenberg–Marquardt run over all candidates of all trials at once (analytic
    Jacobian); the best likelihood per trial wins.  Steps are cut at the first
