@@ -207,6 +207,31 @@ def test_compiled_search_matches_numpy(case):
     assert np.all(np.abs(a_rss[same] - b_rss[same]) <= 1e-9 * ss)
 
 
+def test_search_without_pursuit_is_the_tuples():
+    """grid_search(pursuit=False) (the fast fit's search at K = 4): exactly the coarse
+    subsets' best tuples (the last columns of the full search), compiled == numpy;
+    with no coarse plan (n_coarse = 0) the pursuit runs anyway."""
+    from olsbayes.ml.grid import atoms, default_grid
+    from olsbayes.ml.search import grid_search, grid_search_numpy
+    from olsbayes.ml.tuples import tuple_plans
+
+    model = ob.Model(ob.Ring(30), 1e-2)
+    scene = ob.Scene(directions=0.37 + np.radians([0.0, 60.0, 150.0, 260.0]),
+                     intensities=np.linspace(1.0, 0.6, 4))
+    data = model.simulate(scene, 23, size=40)
+    g = atoms(model, default_grid(model))
+    n_p = len(tuple_plans(g, 4, 6))
+    full = grid_search(g, data, 4, n_coarse=6)
+    only = grid_search(g, data, 4, n_coarse=6, pursuit=False)
+    assert only[0].shape == (40, n_p, 4)
+    for a, b in zip(only, full):
+        np.testing.assert_array_equal(a, b[:, -n_p:])
+    ref = grid_search_numpy(g, data, 4, n_coarse=6, pursuit=False)
+    assert np.mean(np.all(ref[0] == only[0], axis=(1, 2))) >= 0.99
+    np.testing.assert_array_equal(grid_search(g, data, 4, n_coarse=0, pursuit=False)[0],
+                                  grid_search(g, data, 4, n_coarse=0)[0])
+
+
 def test_compiled_search_batch_equals_loop():
     from olsbayes.ml.grid import atoms, default_grid
     from olsbayes.ml.search import grid_search

@@ -4,7 +4,8 @@
 
 * ``method="fast"`` -- polynomial-time: candidate sources from a grid of atoms
   (matching pursuit + alternating projection, and for K >= 2 the best K-tuple of
-  a few coarse atom subsets with intensities solved linearly), then batched
+  a few coarse atom subsets with intensities solved linearly; at K = 4 the
+  tuples of 24 subsets only), then batched
   bounded Levenberg–Marquardt with the analytic Jacobian and a few deterministic
   perturbed restarts and kink hops against the false minima of the clipped
   cosine's kink.

@@ -88,7 +88,8 @@ def fit_ml(
     n_sources : int
         Number K of sources, 1 <= K and K (d + 1) <= N.
     method : {"fast", "multistart", "exact"}
-        ``"fast"``: grid matching pursuit + alternating projection (polynomial in K),
+        ``"fast"``: grid matching pursuit + alternating projection and the best
+        K-tuples of coarse atom subsets (K = 4: the tuples only; polynomial in K),
         joint bounded Levenberg–Marquardt, ``n_restarts`` deterministic perturbed
         restarts and (ring/planar arrays, K >= 2) one round of kink hops into the
         neighbouring smooth cells of the likelihood; batched over trials.
@@ -115,7 +116,8 @@ def fit_ml(
         Fast: number of perturbed restarts and their size in grid steps.
     n_coarse : int, optional
         Fast, K >= 2: number of differently placed coarse atom subsets searched
-        exhaustively over K-tuples (each adds one candidate start; 0 = pursuit only).
+        exhaustively over K-tuples (each adds one candidate start; 0 = pursuit only,
+        which at K = 4 then runs too).
         Default 3 for K <= 3 and 24 from K = 4 on, where three left 6-7 % of fits
         of random scenes short of the global optimum
         (:func:`olsbayes.ml.fast.default_coarse`).

@@ -4,7 +4,8 @@ Pipeline for a batch of T data vectors (all stages vectorised over trials):
 
 1. :func:`~olsbayes.ml.search.grid_search` -- candidate atom sets on a grid of
    unit-intensity atoms: matching pursuit + alternating projection, runner-up
-   positions of each source (:func:`default_runners_up`), and for K >= 2 the
+   positions of each source (:func:`default_runners_up`; not at K = 4,
+   :data:`TUPLES_ONLY`), and for K >= 2 the
    best K-tuple of each of ``n_coarse`` differently placed coarse subsets
    (exhaustive, :mod:`~olsbayes.ml.tuples`; 3 subsets, 24 from K = 4 on:
    :func:`default_coarse`); for K = 3 also each subset's best tuple of a
@@ -91,6 +92,16 @@ DISTINCT_BUDGET = 3_000
 
 #: Coarse tuple-search subsets by default: K <= 3, K >= 4 (see :func:`default_coarse`).
 COARSE_SETS = (3, 24)
+
+#: Numbers of sources for which the search's candidates are the coarse subsets' best
+#: tuples only, without pursuit + alternation and its runners-up (grid_search
+#: ``pursuit``), unless there is no coarse plan (K >= 5 is unmeasured: it keeps them).
+#: At K = 4 on a 30-ring those 9 of 30 LM starts and the pursuit cost 22-27 % of a
+#: batched fit; without them, fits short of the exact optimum (fit_exact), of 4,000
+#: each (200 random scenes x 20 draws): neighbours >= 30 deg, sigma = 0.01: 3 -> 8
+#: (by > 1 in log L: 1 -> 3); sigma = 1e-3: 0 -> 0; neighbours >= 5 deg, sigma =
+#: 0.01: 10 -> 12; sigma = 1e-3: 14 -> 16.
+TUPLES_ONLY = (4,)
 
 
 def default_coarse(k: int) -> int:
@@ -275,7 +286,8 @@ def fit_fast(
     distinct = k in DISTINCT_SOURCES
     idx, inten, _ = grid_search(g, data, k, n_coarse=n_coarse, distinct=distinct,
                                 n_alt=default_runners_up(model, k),
-                                budget=DISTINCT_BUDGET if distinct else TUPLE_BUDGET)
+                                budget=DISTINCT_BUDGET if distinct else TUPLE_BUDGET,
+                                pursuit=k not in TUPLES_ONLY)
     starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
     out = _refine_starts(model, data, starts, max_iter, keep=True)
     found = out.alternatives  # the search candidates' optima (olsbayes.ml.rivals)

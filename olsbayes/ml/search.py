@@ -132,16 +132,18 @@ def _alternatives(
 
 def _search_chunk(
     g: np.ndarray, gnorm2: np.ndarray, s: np.ndarray, k: int, max_sweeps: int,
-    plans: list[TuplePlan], n_alt: int, distinct: bool = False,
+    plans: list[TuplePlan], n_alt: int, distinct: bool = False, pursuit: bool = True,
 ) -> np.ndarray:
     """Candidate K-atom sets (T, C, K): pursuit + alternating projection, runner-up
-    positions of each source, the best tuple of each coarse subset and, with
-    ``distinct``, each subset's best tuple of a second mode."""
-    first, last = _pursuit(g, gnorm2, s, k)
-    base, scores = _alternate(g, gnorm2, s, first, max_sweeps)
-    if k == 1:  # no sweeps; the scores of the single source given no others
-        scores = [last]
-    cands = [base] + _alternatives(g, gnorm2, s, base, n_alt, scores)
+    positions of each source (if ``pursuit``), the best tuple of each coarse subset
+    and, with ``distinct``, each subset's best tuple of a second mode."""
+    cands = []
+    if pursuit:
+        first, last = _pursuit(g, gnorm2, s, k)
+        base, scores = _alternate(g, gnorm2, s, first, max_sweeps)
+        if k == 1:  # no sweeps; the scores of the single source given no others
+            scores = [last]
+        cands = [base] + _alternatives(g, gnorm2, s, base, n_alt, scores)
     found = [tuple_search(plan, s, distinct) for plan in plans]
     if distinct:
         cands += [f[0] for f in found] + [f[1] for f in found]
@@ -224,7 +226,7 @@ def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
 
 def grid_search(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
-    budget: int = TUPLE_BUDGET, n_alt: int = 2, distinct: bool = False,
+    budget: int = TUPLE_BUDGET, n_alt: int = 2, distinct: bool = False, pursuit: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate K-atom explanations of every data vector (compiled, one trial at a time).
 
@@ -237,10 +239,12 @@ def grid_search(
 
     gv, gram, gnorm2, unit, indptr, indices = _atom_views(g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
-    t, first, n_p = data.shape[0], 1 + k * n_alt, len(plans)
+    pursuit = pursuit or not plans
+    t, first, n_p = data.shape[0], (1 + k * n_alt) * pursuit, len(plans)
     idx = np.empty((t, first + n_p * (1 + bool(distinct)), k), dtype=np.int64)
     s = _frozen_view(data)
-    sk.search_trials(gv, gram, gnorm2, unit, indptr, indices, s, k, max_sweeps, n_alt, idx)
+    if pursuit:
+        sk.search_trials(gv, gram, gnorm2, unit, indptr, indices, s, k, max_sweeps, n_alt, idx)
     for j, plan in enumerate(plans):
         tk.tuple_trials(*_plan_views(plan), s, idx, first + j,
                         first + n_p + j if distinct else -1)
@@ -251,7 +255,7 @@ def grid_search(
 
 def grid_search_numpy(
     g: np.ndarray, data: np.ndarray, k: int, max_sweeps: int = 8, n_coarse: int = 3,
-    budget: int = TUPLE_BUDGET, n_alt: int = 2, distinct: bool = False,
+    budget: int = TUPLE_BUDGET, n_alt: int = 2, distinct: bool = False, pursuit: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate K-atom explanations of every data vector (numpy reference).
 
@@ -277,12 +281,17 @@ def grid_search_numpy(
         Also each coarse subset's best tuple outside the basins of its best one
         (:func:`~olsbayes.ml.tuples.tuple_search`): a second mode, e.g. the
         rotated alias of a near-equilateral K = 3 scene.
+    pursuit : bool
+        Run the pursuit, alternation and runners-up (the first 1 + K n_alt
+        candidates).  False: the coarse subsets' tuples only (where there is at
+        least one plan; else the pursuit runs anyway).
 
     Returns
     -------
     idx : ndarray of int, shape (T, C, K)
-        C = 1 + K n_alt + (n_p (2 if distinct else 1) if K >= 2 else 0) candidate
-        atom sets per trial: the best tuples of the subsets, then their second modes.
+        C = (1 + K n_alt if pursuit else 0) + (n_p (2 if distinct else 1) if K >= 2
+        else 0) candidate atom sets per trial: pursuit + alternation, the runners-up,
+        the best tuples of the subsets, then their second modes.
     intensity : ndarray, shape (T, C, K)
         Their least-squares intensities, clipped at 0.
     rss : ndarray, shape (T, C)
@@ -291,7 +300,8 @@ def grid_search_numpy(
     gnorm2 = np.einsum("mn,mn->m", g, g)
     plans = tuple_plans(g, k, n_coarse, budget) if k >= 2 else []
     parts = [
-        _search_chunk(g, gnorm2, data[i : i + _CHUNK], k, max_sweeps, plans, n_alt, distinct)
+        _search_chunk(g, gnorm2, data[i : i + _CHUNK], k, max_sweeps, plans, n_alt, distinct,
+                      pursuit or not plans)
         for i in range(0, data.shape[0], _CHUNK)
     ]
     idx = np.concatenate(parts, axis=0)
