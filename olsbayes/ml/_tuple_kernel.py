@@ -18,7 +18,8 @@ which on AMD Zen cost more than the rest of the loop (K = 4 on a 30-ring, 21
 subsets, per data vector: 0.27 ms with conditional stores and the K x K inverses,
 0.15 ms with these stores and the prefix extension).  K = 2, 3, 4 have unrolled
 kernels (:func:`_block_best2` ...) that repeat the lanes' update on purpose: as a
-called function, even inlined, it kept the loop from vectorising (0.21 ms).
+called function, even with inline="always", it kept the loop from vectorising (with
+the K x K inverses: 0.76 ms called, 0.21 ms written out).
 """
 
 from __future__ import annotations
