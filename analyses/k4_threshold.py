@@ -31,7 +31,7 @@ threshold sigma below which the ML is efficient is therefore far lower for K = 4
 than for K <= 3 on the same ring.
 
 Run ``python analyses/k4_threshold.py`` (quick: 12 scenes x 200 draws, ~1 min)
-or ``--full`` (60 scenes x 500 draws, ~10 min on 2 cores).  Outputs in --out:
+or ``--full`` (60 scenes x 500 draws, ~11 min, one core).  Outputs in --out:
 k4_threshold.png, k4_threshold.csv.
 """
 
