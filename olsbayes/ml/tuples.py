@@ -17,8 +17,9 @@ on the prefix atoms and ``1 / schur``, ``schur = g_dd - g_p,d . w``::
     r = b_d - w . b_p,   I_d = r / schur,   I_p = f - w I_d,
     score = b_p . f + r I_d            (the drop in the residual sum of squares)
 
--- block elimination of the tuple's normal equations: 3 K - 1 multiply-adds per
-tuple instead of K (K + 1) with its K x K inverse (K = 4: 11 instead of 20).
+-- block elimination of the tuple's normal equations: 2 K multiply-adds per tuple
+(K - 1 for r, 2 for I_d and the score, K - 1 for the signs of I_p) instead of
+K (K + 1) with its K x K inverse (K = 4: 8 instead of 20).
 Cost O(C(M_c, K) K) per data vector.
 """
 
