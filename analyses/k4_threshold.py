@@ -86,12 +86,10 @@ def scene_stats(model: ob.Model, scene: ob.Scene, n_draws: int,
     data = model.simulate(scene, rng, size=n_draws)
     ml = fit_ml(model, data, 4, method="exact", warn=False)
     oracle = refine_batch(model, data, np.repeat(truth[None], n_draws, axis=0))
-    effs = []
-    for x in (ml.params, oracle.x):
-        err = estimation_errors(model, x, truth)
-        effs.append(float(np.min(std**2 / np.mean(err**2, axis=0))))
-    err = estimation_errors(model, ml.params, truth)
-    far = np.any(np.abs(err) > 5 * std, axis=1)
+    err_ml = estimation_errors(model, ml.params, truth)
+    effs = [float(np.min(std**2 / np.mean(e**2, axis=0)))
+            for e in (err_ml, estimation_errors(model, oracle.x, truth))]
+    far = np.any(np.abs(err_ml) > 5 * std, axis=1)
     ll_truth = model.log_likelihood(np.repeat(truth[None], n_draws, axis=0), data)
     rival = float(np.mean(far & (ml.log_likelihood >= ll_truth)))
     return effs[0], effs[1], rival

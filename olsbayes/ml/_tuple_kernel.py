@@ -217,15 +217,7 @@ def _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext,
         for i in range(km):
             s = s + pen[prefixes[i, r]]
         lo_c, hi_c = ext_ptr[r], ext_ptr[r + 1]
-        if km == 3:
-            b0, b1, b2, f0, f1, f2 = b[0], b[1], b[2], f[0], f[1], f[2]
-            for c in range(lo_c, hi_c):
-                w0, w1, w2 = ext[0, c], ext[1, c], ext[2, c]
-                rr = corr[last[c]] - (w0 * b0 + w1 * b1 + w2 * b2)
-                cd = rr * ext[3, c]
-                lo = min(min(cd, f0 - w0 * cd), min(f1 - w1 * cd, f2 - w2 * cd))
-                out[c] = s + rr * cd + pen[last[c]] if lo >= 0.0 else -np.inf
-        elif km == 2:
+        if km == 2:  # K = 3 unrolled (K = 4 runs blocked, tuple_trials)
             b0, b1, f0, f1 = b[0], b[1], f[0], f[1]
             for c in range(lo_c, hi_c):
                 w0, w1 = ext[0, c], ext[1, c]
