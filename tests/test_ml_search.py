@@ -96,16 +96,10 @@ def test_tuple_plans_each_distinct_subset_once():
     assert set(planned) == {tuple(s) for s in requested}
 
 
-@pytest.mark.parametrize("k", [2, 3, 4, 5])
-def test_tuple_scores_equal_least_squares(k):
-    """The tuple scores by prefix extension (block elimination) == each tuple's own
-    least-squares solve: RSS drop b' G^-1 b where all intensities G^-1 b >= 0, else
-    -inf; and the compiled search (K = 5: the generic loops) picks a tuple of the
-    largest score."""
-    from olsbayes.ml import _tuple_kernel as tk
+def _tuple_case(k: int, dtype):
+    """A coarse plan, data and every tuple's own least-squares solve (float64)."""
     from olsbayes.ml.grid import atoms, cached_default_grid
-    from olsbayes.ml.search import _plan_views
-    from olsbayes.ml.tuples import tuple_plans, tuple_scores
+    from olsbayes.ml.tuples import tuple_plans
 
     model = ob.Model(ob.Ring(30), 0.05)
     rng = np.random.default_rng(3)
@@ -113,12 +107,25 @@ def test_tuple_scores_equal_least_squares(k):
                      intensities=np.linspace(1.0, 0.3, k))
     data = model.simulate(scene, rng, size=12)
     g = atoms(model, cached_default_grid(model))
-    plan = tuple_plans(g, k, 1)[0]
+    plan = tuple_plans(g, k, 1, dtype=dtype)[0]
     corr = data @ plan.atoms.T
     a = plan.atoms[plan.combos]  # (C, K, N)
     b = corr[:, plan.combos]  # (T, C, K)
     coef = np.linalg.solve(a @ np.swapaxes(a, 1, 2), b[..., None])[..., 0]
-    ref = np.einsum("tck,tck->tc", b, coef)
+    return data, plan, corr, coef, np.einsum("tck,tck->tc", b, coef)
+
+
+@pytest.mark.parametrize("k", [2, 3, 4, 5])
+def test_tuple_scores_equal_least_squares(k):
+    """The tuple scores by prefix extension (block elimination), in float64 == each
+    tuple's own least-squares solve: RSS drop b' G^-1 b where all intensities
+    G^-1 b >= 0, else -inf; and the compiled search (K = 5: the generic loops) picks
+    a tuple of the largest score."""
+    from olsbayes.ml import _tuple_kernel as tk
+    from olsbayes.ml.search import _plan_views
+    from olsbayes.ml.tuples import tuple_scores
+
+    data, plan, corr, coef, ref = _tuple_case(k, np.float64)
     sc = tuple_scores(plan, corr)
     margin = 1e-9 * np.abs(coef).max(axis=2)  # sign decisions within rounding may differ
     clear = np.all(np.abs(coef) > margin[..., None], axis=2)
@@ -132,6 +139,36 @@ def test_tuple_scores_equal_least_squares(k):
                      for o in out[:, 0]])
     top = np.max(sc, axis=1)
     np.testing.assert_allclose(sc[np.arange(data.shape[0]), pick], top, rtol=1e-12)
+
+
+def test_float32_tuple_scores_within_rounding_bound():
+    """K = 4 plans score in float32 by default: each score is within the first-order
+    rounding bound of the block elimination (inputs and every operation rounded,
+    eps = 2^-24) of the float64 least-squares score, and feasibility agrees wherever
+    every intensity is further from 0 than its own bound."""
+    from olsbayes.ml.tuples import tuple_scores
+
+    data, plan, corr, coef, ref = _tuple_case(4, None)
+    assert plan.ext.dtype == np.float32
+    km, eps = 3, np.finfo(np.float32).eps / 2
+    p64 = [np.asarray(x, float) for x in (plan.prefix_inv, plan.ext)]
+    owner = np.repeat(np.arange(plan.prefixes.shape[1]), np.diff(plan.ext_ptr))
+    bp = np.abs(corr[:, plan.prefixes[:, owner]])  # (T, K-1, C) |b_p|
+    big_f = np.einsum("ijc,tjc->tic", np.abs(p64[0][..., owner]), bp)  # sum_j |a_ij b_j|
+    w, isc = np.abs(p64[1][:km]), np.abs(p64[1][km])
+    r_mag = np.abs(corr[:, plan.columns[km]]) + np.einsum("ic,tic->tc", w, bp)
+    d_rr = (km + 2) * eps * r_mag  # error of r = b_d - w . b_p
+    d_cd = d_rr * isc + eps * np.abs(coef[..., -1])
+    bound = ((2 * km + 2) * eps * np.einsum("tic,tic->tc", bp, big_f)
+             + 2 * np.abs(coef[..., -1]) * d_rr + 3 * eps * np.abs(ref))
+    d_coef = np.concatenate([(km + 2) * eps * big_f + w * d_cd[:, None], d_cd[:, None]], 1)
+    clear = np.all(np.abs(coef) > np.moveaxis(d_coef, 1, 2), axis=2)
+    feasible = np.all(coef >= 0, axis=2)
+    sc = tuple_scores(plan, corr)
+    assert sc.dtype == np.float32 and clear.mean() > 0.99
+    np.testing.assert_array_equal(np.isfinite(sc)[clear], feasible[clear])
+    both = clear & feasible
+    assert np.all(np.abs(sc[both] - ref[both]) <= bound[both])
 
 
 @pytest.mark.parametrize("k", [2, 3, 4])

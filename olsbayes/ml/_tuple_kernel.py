@@ -20,6 +20,14 @@ subsets, per data vector: 0.27 ms with conditional stores and the K x K inverses
 kernels (:func:`_block_best2` ...) that repeat the lanes' update on purpose: as a
 called function, even with inline="always", it kept the loop from vectorising (with
 the K x K inverses: 0.76 ms called, 0.21 ms written out).
+
+The kernels take the plan's float type (:data:`olsbayes.ml.tuples.SINGLE_PRECISION`):
+K = 4 plans score in float32, so a vector instruction holds twice the lanes, and
+their first pass (no blocked atoms) skips the penalty matrix: the K = 4 search
+of 21 subsets per data vector took 0.17-0.19 ms before, 0.15 without the penalty
+matrix, 0.09-0.10 also in float32.  The constants -inf and 0 are taken from the lanes' arrays
+and a tuple's number from its plan (``ext``), so that no float64 value enters a
+float32 loop.
 """
 
 from __future__ import annotations
@@ -42,21 +50,23 @@ PER_TRIAL_BELOW = 4
 def _block_best_any(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
                     arg):  # pragma: no cover - compiled
     """:func:`_block_best` for any K, by loops over the prefix atoms."""
-    km, nb = prefixes.shape[0], best.size
-    bp, f, sp = np.empty((km, nb)), np.empty((km, nb)), np.empty(nb)
+    km, nb, dt = prefixes.shape[0], best.size, best.dtype
+    bp, f, sp = np.empty((km, nb), dt), np.empty((km, nb), dt), np.empty(nb, dt)
     best[:] = -np.inf
     arg[:] = 0.0
+    neg, zero = best[0], arg[0]  # -inf and 0 as the scores' type
     for r in range(prefixes.shape[1]):
         for tb in range(nb):
             for i in range(km):
                 bp[i, tb] = corr_t[prefixes[i, r], tb]
-            s = 0.0
             for i in range(km):
                 fi = prefix_inv[i, 0, r] * bp[0, tb]
                 for j in range(1, km):
                     fi = fi + prefix_inv[i, j, r] * bp[j, tb]
                 f[i, tb] = fi
-                s = bp[0, tb] * fi if i == 0 else s + bp[i, tb] * fi
+            s = bp[0, tb] * f[0, tb]
+            for i in range(1, km):
+                s = s + bp[i, tb] * f[i, tb]
             for i in range(km):
                 s = s + pen_t[prefixes[i, r], tb]
             sp[tb] = s
@@ -71,24 +81,25 @@ def _block_best_any(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, bes
                 lo = cd
                 for i in range(km):
                     lo = min(lo, f[i, tb] - ext[i, c] * cd)
-                sc = sc + pen_t[last[c], tb] if lo >= 0.0 else -np.inf
+                sc = sc + pen_t[last[c], tb] if lo >= zero else neg
                 if sc > best[tb]:
-                    best[tb], arg[tb] = sc, float(c)
+                    best[tb], arg[tb] = sc, ext[km + 1, c]
 
 
 @numba.njit(cache=True)
-def _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
+def _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, use_pen, best,
                 arg):  # pragma: no cover - compiled
     """Best feasible tuple of every lane of a block: best (B,) its score (-inf: none),
-    arg (B,) its number (float64, 0 if none).  pen_t (Mc, B): 0, or -inf for an atom
-    blocked for the lane (the tuples holding it are skipped; adding 0 is exact)."""
+    arg (B,) its number (0 if none), both of the plan's float type.  pen_t (Mc, B):
+    0, or with ``use_pen`` -inf for an atom blocked for the lane (the tuples
+    holding it are skipped; adding 0 is exact); K = 4 without ``use_pen`` skips it."""
     km = prefixes.shape[0]
     if km == 1:
         _block_best2(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best, arg)
     elif km == 2:
         _block_best3(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best, arg)
-    elif km == 3:
-        _block_best4(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best, arg)
+    elif km == 3 and not use_pen:
+        _block_best4(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, best, arg)
     else:
         _block_best_any(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best, arg)
 
@@ -97,10 +108,11 @@ def _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
 def _block_best2(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
                  arg):  # pragma: no cover - compiled
     """:func:`_block_best` for K = 2, unrolled (see :func:`_block_best4`)."""
-    nb = best.size
-    b0, f0, sp = np.empty(nb), np.empty(nb), np.empty(nb)
+    nb, dt = best.size, best.dtype
+    b0, f0, sp = np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt)
     best[:] = -np.inf
     arg[:] = 0.0
+    neg, zero = best[0], arg[0]
     for r in range(prefixes.shape[1]):
         i0, a00 = prefixes[0, r], prefix_inv[0, 0, r]
         for tb in range(nb):
@@ -110,14 +122,13 @@ def _block_best2(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
             sp[tb] = x0 * g0 + pen_t[i0, tb]
         for c in range(ext_ptr[r], ext_ptr[r + 1]):
             row, prow = corr_t[last[c]], pen_t[last[c]]
-            w0, isc = ext[0, c], ext[1, c]
-            fc = float(c)
+            w0, isc, fc = ext[0, c], ext[1, c], ext[2, c]
             for tb in range(nb):
                 rr = row[tb] - w0 * b0[tb]
                 cd = rr * isc
                 sc = sp[tb] + rr * cd
                 lo = min(cd, f0[tb] - w0 * cd)
-                sc = sc + prow[tb] if lo >= 0.0 else -np.inf
+                sc = sc + prow[tb] if lo >= zero else neg
                 old = best[tb]
                 arg[tb] = fc if sc > old else arg[tb]
                 best[tb] = max(sc, old)
@@ -127,10 +138,12 @@ def _block_best2(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
 def _block_best3(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
                  arg):  # pragma: no cover - compiled
     """:func:`_block_best` for K = 3, unrolled (see :func:`_block_best4`)."""
-    nb = best.size
-    b0, b1, f0, f1, sp = np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb)
+    nb, dt = best.size, best.dtype
+    b0, b1, f0, f1 = np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt)
+    sp = np.empty(nb, dt)
     best[:] = -np.inf
     arg[:] = 0.0
+    neg, zero = best[0], arg[0]
     for r in range(prefixes.shape[1]):
         i0, i1 = prefixes[0, r], prefixes[1, r]
         a00, a01 = prefix_inv[0, 0, r], prefix_inv[0, 1, r]
@@ -144,29 +157,30 @@ def _block_best3(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
             sp[tb] = x0 * g0 + x1 * g1 + pen_t[i0, tb] + pen_t[i1, tb]
         for c in range(ext_ptr[r], ext_ptr[r + 1]):
             row, prow = corr_t[last[c]], pen_t[last[c]]
-            w0, w1, isc = ext[0, c], ext[1, c], ext[2, c]
-            fc = float(c)
+            w0, w1, isc, fc = ext[0, c], ext[1, c], ext[2, c], ext[3, c]
             for tb in range(nb):
                 rr = row[tb] - (w0 * b0[tb] + w1 * b1[tb])
                 cd = rr * isc
                 sc = sp[tb] + rr * cd
                 lo = min(cd, min(f0[tb] - w0 * cd, f1[tb] - w1 * cd))
-                sc = sc + prow[tb] if lo >= 0.0 else -np.inf
+                sc = sc + prow[tb] if lo >= zero else neg
                 old = best[tb]
                 arg[tb] = fc if sc > old else arg[tb]
                 best[tb] = max(sc, old)
 
 
 @numba.njit(cache=True)
-def _block_best4(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
+def _block_best4(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, best,
                  arg):  # pragma: no cover - compiled
-    """:func:`_block_best` for K = 4, unrolled; the lanes' work arrays are allocated
-    here, so the compiler knows they do not alias and vectorises over lanes."""
-    nb = best.size
-    b0, b1, b2 = np.empty(nb), np.empty(nb), np.empty(nb)
-    f0, f1, f2, sp = np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb)
+    """:func:`_block_best` for K = 4 without blocked atoms, unrolled; the lanes' work
+    arrays are allocated here, so the compiler knows they do not alias and
+    vectorises over lanes."""
+    nb, dt = best.size, best.dtype
+    b0, b1, b2 = np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt)
+    f0, f1, f2, sp = np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt)
     best[:] = -np.inf
     arg[:] = 0.0
+    neg, zero = best[0], arg[0]
     for r in range(prefixes.shape[1]):
         i0, i1, i2 = prefixes[0, r], prefixes[1, r], prefixes[2, r]
         a00, a01, a02 = prefix_inv[0, 0, r], prefix_inv[0, 1, r], prefix_inv[0, 2, r]
@@ -179,18 +193,16 @@ def _block_best4(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
             g1 = a10 * x0 + a11 * x1 + a12 * x2
             g2 = a20 * x0 + a21 * x1 + a22 * x2
             f0[tb], f1[tb], f2[tb] = g0, g1, g2
-            s = x0 * g0 + x1 * g1 + x2 * g2
-            sp[tb] = s + pen_t[i0, tb] + pen_t[i1, tb] + pen_t[i2, tb]
+            sp[tb] = x0 * g0 + x1 * g1 + x2 * g2
         for c in range(ext_ptr[r], ext_ptr[r + 1]):
-            row, prow = corr_t[last[c]], pen_t[last[c]]
-            w0, w1, w2, isc = ext[0, c], ext[1, c], ext[2, c], ext[3, c]
-            fc = float(c)
+            row = corr_t[last[c]]
+            w0, w1, w2, isc, fc = ext[0, c], ext[1, c], ext[2, c], ext[3, c], ext[4, c]
             for tb in range(nb):
                 rr = row[tb] - (w0 * b0[tb] + w1 * b1[tb] + w2 * b2[tb])
                 cd = rr * isc
                 sc = sp[tb] + rr * cd
                 lo = min(min(cd, f0[tb] - w0 * cd), min(f1[tb] - w1 * cd, f2[tb] - w2 * cd))
-                sc = sc + prow[tb] if lo >= 0.0 else -np.inf
+                sc = sc if lo >= zero else neg
                 old = best[tb]
                 arg[tb] = fc if sc > old else arg[tb]
                 best[tb] = max(sc, old)
@@ -203,9 +215,12 @@ def _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext,
     (Mc,) 0 or -inf), vectorised over the tuples of each prefix: one lane of the
     blocked kernels gains nothing from vectors.  Same arithmetic as them."""
     km = prefixes.shape[0]
-    b, f = np.empty(km), np.empty(km)
+    b, f = np.empty(km, out.dtype), np.empty(km, out.dtype)
+    f[0] = 0.0
+    zero = f[0]  # 0 and -inf as the scores' type
+    f[0] = -np.inf
+    neg = f[0]
     for r in range(prefixes.shape[1]):
-        s = 0.0
         for i in range(km):
             b[i] = corr[prefixes[i, r]]
         for i in range(km):
@@ -213,7 +228,9 @@ def _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext,
             for j in range(1, km):
                 fi = fi + prefix_inv[i, j, r] * b[j]
             f[i] = fi
-            s = b[0] * fi if i == 0 else s + b[i] * fi
+        s = b[0] * f[0]
+        for i in range(1, km):
+            s = s + b[i] * f[i]
         for i in range(km):
             s = s + pen[prefixes[i, r]]
         lo_c, hi_c = ext_ptr[r], ext_ptr[r + 1]
@@ -224,7 +241,7 @@ def _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext,
                 rr = corr[last[c]] - (w0 * b0 + w1 * b1)
                 cd = rr * ext[2, c]
                 lo = min(cd, min(f0 - w0 * cd, f1 - w1 * cd))
-                out[c] = s + rr * cd + pen[last[c]] if lo >= 0.0 else -np.inf
+                out[c] = s + rr * cd + pen[last[c]] if lo >= zero else neg
         else:
             for c in range(lo_c, hi_c):
                 acc = ext[0, c] * b[0]
@@ -235,7 +252,7 @@ def _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext,
                 lo = cd
                 for i in range(km):
                     lo = min(lo, f[i] - ext[i, c] * cd)
-                out[c] = s + rr * cd + pen[last[c]] if lo >= 0.0 else -np.inf
+                out[c] = s + rr * cd + pen[last[c]] if lo >= zero else neg
 
 
 @numba.njit(cache=True)
@@ -259,10 +276,10 @@ def _first_max(scores, columns, blocked, masked):  # pragma: no cover - compiled
 def _per_trial(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, data, out,
                col, col2):  # pragma: no cover - compiled
     """:func:`tuple_trials` one trial at a time: all scores, then the first maxima."""
-    mc = atoms.shape[0]
-    corr, pen = np.empty(mc), np.zeros(mc)
+    mc, dt = atoms.shape[0], ext.dtype
+    corr, pen = np.empty(mc, dt), np.zeros(mc, dt)
     blocked = np.zeros(mc, np.bool_)
-    scores = np.empty(columns.shape[1])
+    scores = np.empty(columns.shape[1], dt)
     last = columns[columns.shape[0] - 1]
     for i in range(data.shape[0]):
         _matvec(atoms, data[i], corr)
@@ -309,11 +326,11 @@ def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, nea
                    col, col2)
         return
     last = columns[columns.shape[0] - 1]
-    nb = min(TUPLE_BLOCK, t)
-    corr, corr_t = np.empty(mc), np.zeros((mc, nb))
-    blocked, pen_t = np.empty(mc, np.bool_), np.zeros((mc, nb))
-    best, args = np.empty(nb), np.empty(nb)
-    best2, args2 = np.empty(nb), np.empty(nb)
+    nb, dt = min(TUPLE_BLOCK, t), ext.dtype
+    corr, corr_t = np.empty(mc), np.zeros((mc, nb), dt)
+    blocked, pen_t = np.empty(mc, np.bool_), np.zeros((mc, nb), dt)
+    best, args = np.empty(nb, dt), np.empty(nb, dt)
+    best2, args2 = np.empty(nb, dt), np.empty(nb, dt)
     for start in range(0, t, nb):
         m = min(nb, t - start)
         for tb in range(m):
@@ -321,7 +338,7 @@ def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, nea
             for u in range(mc):
                 corr_t[u, tb] = corr[u]
         pen_t[:] = 0.0
-        _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best, args)
+        _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, False, best, args)
         for tb in range(m):
             _write(subset, columns, int(args[tb]), out[start + tb, col])
         if col2 < 0:
@@ -330,7 +347,7 @@ def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, nea
             _block(near, columns, int(args[tb]), blocked)
             for u in range(mc):
                 pen_t[u, tb] = -np.inf if blocked[u] else 0.0
-        _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best2, args2)
+        _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, True, best2, args2)
         for tb in range(m):
             arg = args2[tb] if best2[tb] > -np.inf else args[tb]
             _write(subset, columns, int(arg), out[start + tb, col2])

@@ -220,7 +220,8 @@ def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
     return _memo(plan, lambda p: (
         _frozen_view(p.atoms), _frozen_view(p.subset, np.int64),
         _frozen_view(p.columns, np.uint64), _frozen_view(p.prefixes, np.uint64),
-        _frozen_view(p.prefix_inv), _frozen_view(p.ext_ptr, np.int64), _frozen_view(p.ext),
+        _frozen_view(p.prefix_inv, p.ext.dtype), _frozen_view(p.ext_ptr, np.int64),
+        _frozen_view(p.ext, p.ext.dtype),
         _frozen_view(p.near, np.bool_)))
 
 
