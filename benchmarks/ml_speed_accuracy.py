@@ -31,7 +31,7 @@ and ``exact`` (:func:`~olsbayes.ml.fit_exact`, one batched call: the global
 optimum, by enumerating the ring's linear cells).  The exact row is the
 reference for the global-optimum share, and its efficiency is that of the ML
 estimator itself: where it is below 1 (K = 4 at sigma = 1e-2, where another
-cell's optimum beats the one near the truth in ~14 % of draws), no search can do
+cell's optimum beats the one near the truth in ~13 % of draws), no search can do
 better.  The single fits of ``fast`` and ``multistart`` alternate in blocks of
 ``--block`` data vectors (10), so both see the same machine load with warm
 caches, as in a user's loop of fits; ``--block 1`` alternates every fit (each
