@@ -23,11 +23,11 @@ the K x K inverses: 0.76 ms called, 0.21 ms written out).
 
 The kernels take the plan's float type (:data:`olsbayes.ml.tuples.SINGLE_PRECISION`):
 K = 4 plans score in float32, so a vector instruction holds twice the lanes, and
-their first pass (no blocked atoms) skips the penalty matrix: the K = 4 search
-of 21 subsets per data vector took 0.17-0.19 ms before, 0.15 without the penalty
-matrix, 0.09-0.10 also in float32.  The constants -inf and 0 are taken from the lanes' arrays
-and a tuple's number from its plan (``ext``), so that no float64 value enters a
-float32 loop.
+their first pass (no blocked atoms) skips the penalty matrix: the K = 4 search of
+21 subsets per data vector took 0.17-0.19 ms before, 0.15 without the penalty
+matrix, 0.09-0.10 also in float32.  The constants -inf and 0 are taken from the
+lanes' arrays and a tuple's number from its plan (``ext``), so that no float64
+value enters a float32 loop.
 """
 
 from __future__ import annotations

@@ -129,6 +129,8 @@ def _plan(g: np.ndarray, subset: np.ndarray, k: int, dtype: type) -> TuplePlan:
     schur = gram[last, last] - np.einsum("ci,ci->c", cross, reg)
     unit = gc / np.sqrt(np.maximum(np.diag(gram), 1e-300))[:, None]
     ext = np.column_stack([reg, 1.0 / schur, np.arange(combos.shape[0])]).T
+    if combos.shape[0] > 2**24:  # tuple numbers beyond float32's integers
+        dtype = np.float64
     return TuplePlan(
         subset, gc, combos, np.ascontiguousarray(combos.T), np.ascontiguousarray(pre.T),
         np.ascontiguousarray(np.moveaxis(pre_inv, 0, -1), dtype=dtype),
