@@ -14,8 +14,39 @@ from .scene import Scene
 
 __all__ = ["CRLBResult", "crlb", "crlb_eq3", "crlb_eq4", "kink_sources"]
 
-#: Relative eigenvalue below which a Fisher matrix counts as singular.
+#: Relative eigenvalue below which a Fisher matrix counts as singular (after
+#: :func:`equilibrate`, so the rule does not depend on the units of the readings).
 SINGULAR_RTOL = 1e-10
+
+
+def equilibrate(fisher: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(D F D, d)`` with D = diag(d), d = diag(F)^-1/2 (1 where a diagonal is 0).
+
+    The parameters mix units -- angles in rad, intensities in the readings' unit
+    -- so the raw eigenvalues of F span the square of the readings' scale: with
+    readings of order 1e-6, a relative eigenvalue threshold would call every
+    well-determined angle singular.  D F D has a unit diagonal, the same null
+    space (a congruence) and eigenvalues free of the units.  Batched over
+    leading axes: ``fisher`` (..., P, P), ``d`` (..., P).
+    """
+    diag = np.diagonal(fisher, axis1=-2, axis2=-1)
+    pos = diag > 0
+    d = np.where(pos, 1.0 / np.sqrt(np.where(pos, diag, 1.0)), 1.0)
+    return fisher * d[..., :, None] * d[..., None, :], d
+
+
+def covariance_root(cov: np.ndarray) -> np.ndarray:
+    """A square root R (P, P) with R R^T = cov (negative eigenvalues clipped to 0).
+
+    From the eigendecomposition of the correlation matrix, scaled back: the
+    eigenvectors of a covariance in mixed units (rad, readings) would be
+    accurate only to eps times its largest variance, not to each parameter's own.
+    """
+    cov = 0.5 * (cov + cov.T)
+    s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    s = np.where(s > 0, s, 1.0)
+    w, v = np.linalg.eigh(cov / np.outer(s, s))
+    return s[:, None] * v * np.sqrt(np.clip(w, 0.0, None))
 
 
 @dataclass(frozen=True)
@@ -33,7 +64,8 @@ class CRLBResult:
     position_std : ndarray, shape (K, 3) or None
         Bound on the std of each near-source coordinate (plate).
     condition : float
-        Condition number of the Fisher matrix (inf when singular).
+        Condition number of the Fisher matrix with each parameter in units of its
+        own information (:func:`equilibrate`; inf when singular).
     resolvable : bool
         False when some parameter is not identifiable (its std is inf).
     """
@@ -57,19 +89,22 @@ def bound_covariance(fisher: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]
 
     A parameter's bound is finite iff its unit vector is orthogonal to the null
     space of the Fisher matrix; finite bounds then come from the pseudo-inverse.
+    Null space and inverse are those of the :func:`equilibrate`-d matrix.
 
     Returns
     -------
     cov : ndarray (P, P)
     condition : float
+        Of the equilibrated matrix (units-free).
     singular : ndarray of bool (P,)
         Parameters whose bound is infinite.
     """
+    fisher, d = equilibrate(np.asarray(fisher, dtype=float))
     w, v = np.linalg.eigh(fisher)
     top = w.max() if w.size else 0.0
     null = w <= SINGULAR_RTOL * max(top, np.finfo(float).tiny)
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    cov = (v * inv_w) @ v.T
+    cov = (v * inv_w) @ v.T * d[:, None] * d[None, :]
     singular = np.any(np.abs(v[:, null]) > 1e-6, axis=1)
     cov[singular, :] = np.inf
     cov[:, singular] = np.inf

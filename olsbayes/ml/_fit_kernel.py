@@ -16,6 +16,7 @@ import weakref
 import numba
 import numpy as np
 
+from ..crlb import equilibrate
 from ..model import Model
 from ._kernel import _arrays, _normal_eq
 from ._model_kernel import _residual
@@ -123,11 +124,13 @@ def _cov_all(fisher, rtol, out):  # pragma: no cover - compiled
 
 
 def covariances(fisher: np.ndarray, rtol: float) -> np.ndarray:
-    """Inverse Fisher matrices (T, P, P) by the rule of ``api._covariances`` (finite input)."""
-    f = np.require(fisher, np.float64, ["C", "W"])
+    """Inverse Fisher matrices (T, P, P) by the rule of ``api._covariances`` (finite
+    input): the kernel works on the equilibrated matrices (:func:`olsbayes.crlb.equilibrate`)."""
+    f, d = equilibrate(np.asarray(fisher, dtype=np.float64))
+    f = np.require(f, np.float64, ["C", "W"])
     out = np.empty(f.shape)
     _cov_all(f, float(rtol), out)
-    return out
+    return out * d[:, :, None] * d[:, None, :]
 
 
 _CROSSINGS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_rng, integer, positive_float
-from ..crlb import SINGULAR_RTOL
+from ..crlb import SINGULAR_RTOL, equilibrate
 from ..errors import ConvergenceWarning, InputError, MultimodalWarning
 from ..model import Model
 from .batch import LMOutcome
@@ -17,6 +17,7 @@ from .grid import cached_default_grid, check_grid
 from .multistart import fit_multistart
 from .result import MLResult
 from .rivals import DISTINCT_STD, RIVAL_WARN, rival_gap
+from .scaling import reading_scales, rescale, scaled_model
 
 __all__ = ["fit_ml", "METHODS"]
 
@@ -48,15 +49,17 @@ def _covariances(model: Model, x: np.ndarray, fisher: np.ndarray | None = None) 
     """Inverse Fisher matrices (T, P, P) at the estimates x (T, P), batched.
 
     Same rule as :func:`olsbayes.crlb.bound_covariance`, vectorised over trials:
-    pseudo-inverse over the eigenvalues above ``SINGULAR_RTOL`` times the largest,
-    rows/columns of parameters with a component in the null space set to inf.
-    ``fisher``: the Fisher matrices at x if already known.
+    of the equilibrated matrices, the pseudo-inverse over the eigenvalues above
+    ``SINGULAR_RTOL`` times the largest, rows/columns of parameters with a
+    component in the null space set to inf.  ``fisher``: the Fisher matrices at x
+    if already known.
     """
-    w, v = np.linalg.eigh(model.fisher(x) if fisher is None else fisher)  # (T, P), (T, P, P)
+    f, d = equilibrate(model.fisher(x) if fisher is None else fisher)
+    w, v = np.linalg.eigh(f)  # (T, P), (T, P, P)
     top = np.maximum(w[:, -1:], np.finfo(float).tiny)
     null = w <= SINGULAR_RTOL * top
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    cov = (v * inv_w[:, None, :]) @ np.swapaxes(v, 1, 2)
+    cov = (v * inv_w[:, None, :]) @ np.swapaxes(v, 1, 2) * d[:, :, None] * d[:, None, :]
     singular = np.any((np.abs(v) > 1e-6) & null[:, None, :], axis=2)  # (T, P)
     bad = singular[:, :, None] | singular[:, None, :]
     return np.where(bad, np.inf, cov)
@@ -146,30 +149,55 @@ def fit_ml(
     g = cached_default_grid(model) if grid is None else check_grid(model, grid)
     batch = arr.ndim == 2
     s = arr if batch else arr[None, :]
+    scale = reading_scales(s)  # readings far from order 1: fitted in scaled units
+    scaled = bool(np.any(scale != 1.0))
+    s_in = s / scale[:, None] if scaled else s
     if method == "fast":
         n_restarts = integer("n_restarts", n_restarts, low=0, high=64)
         restart_scale = positive_float("restart_scale", restart_scale)
         it = 300 if max_iter is None else integer("max_iter", max_iter, low=1)
         if n_coarse is not None:
             n_coarse = integer("n_coarse", n_coarse, low=0, high=64)
-        out = fit_fast(model, s, k, g, n_restarts=n_restarts, restart_scale=restart_scale,
+        out = fit_fast(model, s_in, k, g, n_restarts=n_restarts, restart_scale=restart_scale,
                        n_coarse=n_coarse, max_iter=it)
     elif method == "exact":
-        out = _exact(model, s, k)
+        out = _exact(model, s_in, k, scale)
     else:
         n_starts = integer("n_starts", n_starts, low=1)
         it = 500 if max_iter is None else integer("max_iter", max_iter, low=1)
-        out = fit_multistart(model, s, k, g, gen, n_starts=n_starts, max_iter=it)
+        out = _multistart(model, s_in, k, g, gen, scale, n_starts=n_starts, max_iter=it)
+    if scaled:
+        out = rescale(model, out, scale)
     return _result(model, s, k, method, out, batch, warn)
 
 
-def _exact(model: Model, s: np.ndarray, k: int) -> LMOutcome:
-    """fit_exact as an LM outcome (converged by construction; evaluations = configurations)."""
-    ex = fit_exact(model, s, k, count_feasible=False)
-    t = s.shape[0]
-    chi2 = np.sum((s - model.response(ex.params)) ** 2, axis=-1)
-    return LMOutcome(ex.params, chi2, np.ones(t, dtype=bool),
-                     np.full(t, ex.n_configurations, dtype=np.int64), np.zeros(t, dtype=bool))
+def _multistart(model: Model, s: np.ndarray, k: int, g: np.ndarray,
+                gen: np.random.Generator, scale: np.ndarray, **opts) -> LMOutcome:
+    """fit_multistart of data divided by ``scale`` (T,): sigma scaled alike per trial
+    (its objective is in units of sigma), trials in order (one rng stream)."""
+    if np.all(scale == 1.0):
+        return fit_multistart(model, s, k, g, gen, **opts)
+    parts = [fit_multistart(scaled_model(model, float(c)), s[i : i + 1], k, g, gen, **opts)
+             for i, c in enumerate(scale)]
+    return LMOutcome(*(np.concatenate([getattr(o, f) for o in parts])
+                       for f in ("x", "chi2", "converged", "n_evaluations")),
+                     alternatives=tuple(np.concatenate([o.alternatives[j] for o in parts])
+                                        for j in (0, 1)))
+
+
+def _exact(model: Model, s: np.ndarray, k: int, scale: np.ndarray) -> LMOutcome:
+    """fit_exact of data divided by ``scale`` (T,) as an LM outcome (converged by
+    construction; evaluations = configurations).  Trials sharing a scale run in one
+    batch with sigma scaled alike: fit_exact ranks its candidates by log-likelihood,
+    whose chi^2 term would vanish in rounding against -N log sigma otherwise."""
+    t, p = s.shape[0], model.n_params(k)
+    x, nconf = np.empty((t, p)), np.empty(t, dtype=np.int64)
+    for c in np.unique(scale):
+        rows = scale == c
+        ex = fit_exact(scaled_model(model, float(c)), s[rows], k, count_feasible=False)
+        x[rows], nconf[rows] = ex.params, ex.n_configurations
+    chi2 = np.sum((s - model.response(x)) ** 2, axis=-1)
+    return LMOutcome(x, chi2, np.ones(t, dtype=bool), nconf, np.zeros(t, dtype=bool))
 
 
 def _result(

@@ -63,10 +63,14 @@ def match_truths(result, truths) -> np.ndarray:
 def _ellipse(ax: Any, mean: np.ndarray, cov: np.ndarray, n_sigma: float, **kw: Any) -> None:
     from matplotlib.patches import Ellipse
 
-    vals, vecs = np.linalg.eigh(cov)
-    vals = np.clip(vals, 0.0, None)
-    angle = np.degrees(np.arctan2(vecs[1, 1], vecs[0, 1]))
-    ax.add_patch(Ellipse(mean, 2 * n_sigma * np.sqrt(vals[1]), 2 * n_sigma * np.sqrt(vals[0]),
+    # the 2 x 2 eigensystem in closed form: the small axis as det / large, accurate
+    # when the two parameters' units differ by many decades (eigh's is not)
+    a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+    big = 0.5 * (a + c) + np.hypot(0.5 * (a - c), b)
+    rho2 = b * b / (a * c) if a > 0 and c > 0 else 1.0
+    small = max(a * c * (1.0 - rho2), 0.0) / big if big > 0 else 0.0
+    angle = 0.5 * np.degrees(np.arctan2(2.0 * b, a - c))
+    ax.add_patch(Ellipse(mean, 2 * n_sigma * np.sqrt(big), 2 * n_sigma * np.sqrt(small),
                          angle=angle, fill=False, **kw))
 
 

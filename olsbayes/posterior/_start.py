@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..crlb import bound_covariance
+from ..crlb import bound_covariance, covariance_root
 from ..errors import InputError
 from ..priors import ScenePrior
 
@@ -61,8 +61,7 @@ def initial_ensemble(
     Draws outside the prior support are redrawn; after ``max_tries`` rounds
     the ball shrinks by 2 each round.
     """
-    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
-    root = v * np.sqrt(np.clip(w, 0.0, None))
+    root = covariance_root(cov)
     out = np.empty((n_walkers, centre.size))
     todo = np.arange(n_walkers)
     shrink = 1.0

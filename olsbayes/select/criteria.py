@@ -85,7 +85,7 @@ def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000,
         Draws from each K's Laplace posterior (4 chains of n_draws / 4).
     rng : Generator or seed
     """
-    from ..crlb import bound_covariance
+    from ..crlb import bound_covariance, covariance_root
     from ..posterior._arviz import from_dict, loo
 
     data = model.check_data(data)
@@ -102,7 +102,8 @@ def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000,
         if singular.any():
             elpd.append(np.nan), se.append(np.nan), pk.append(np.nan)
             continue
-        draws = gen.multivariate_normal(ev.params, cov, size=n_draws, method="eigh")
+        root = covariance_root(cov)  # (multivariate_normal's eigh would mix the units)
+        draws = ev.params + gen.standard_normal((n_draws, cov.shape[0])) @ root.T
         w = model.n_loc + 1
         draws[:, w - 1 :: w] = np.abs(draws[:, w - 1 :: w])  # reflect at I = 0
         point = _pointwise(model, draws, data).reshape(4, -1, data.size)

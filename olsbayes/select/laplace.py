@@ -23,7 +23,7 @@ import numpy as np
 from scipy.special import gammaln, log_ndtr
 
 from .._validation import finite_array, positive_float
-from ..crlb import SINGULAR_RTOL
+from ..crlb import SINGULAR_RTOL, equilibrate
 from ..errors import InputError
 
 __all__ = [
@@ -234,11 +234,12 @@ def model_laplace(
     if ridge:
         fisher = fisher + np.diag(prior_precision(prior))
     sign, logdet = np.linalg.slogdet(fisher)
-    w = np.linalg.eigvalsh(fisher)
+    f, d = equilibrate(fisher)
+    w = np.linalg.eigvalsh(f)
     # singular by the same rule as olsbayes.crlb.bound_covariance
     ok = (sign > 0) & np.isfinite(logdet) & (w[..., 0] > SINGULAR_RTOL * w[..., -1])
-    safe = np.where(ok[..., None, None], fisher, np.eye(x.shape[-1]))
-    cov = np.linalg.inv(safe)
+    safe = np.where(ok[..., None, None], f, np.eye(x.shape[-1]))
+    cov = np.linalg.inv(safe) * d[..., :, None] * d[..., None, :]
     var = np.diagonal(cov, axis1=-2, axis2=-1)
     ok = ok & np.all(var > 0, axis=-1)  # numerically indefinite inverse: treat as singular
     sd = np.sqrt(np.where(ok[..., None] & (var > 0), var, np.nan))
