@@ -84,32 +84,36 @@ class CRLBResult:
         return np.sqrt(np.diag(self.cov))
 
 
-def bound_covariance(fisher: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+def bound_covariance(fisher: np.ndarray) -> tuple[np.ndarray, float | np.ndarray, np.ndarray]:
     """Covariance bound of a Fisher matrix, with unidentifiable parameters at inf.
 
     A parameter's bound is finite iff its unit vector is orthogonal to the null
     space of the Fisher matrix; finite bounds then come from the pseudo-inverse.
     Null space and inverse are those of the :func:`equilibrate`-d matrix.
+    Batched over leading axes.
 
     Returns
     -------
-    cov : ndarray (P, P)
-    condition : float
-        Of the equilibrated matrix (units-free).
-    singular : ndarray of bool (P,)
+    cov : ndarray (..., P, P)
+    condition : float, or ndarray (...) for a batch
+        Of the equilibrated matrix (units-free); inf when singular.
+    singular : ndarray of bool (..., P)
         Parameters whose bound is infinite.
     """
-    fisher, d = equilibrate(np.asarray(fisher, dtype=float))
-    w, v = np.linalg.eigh(fisher)
-    top = w.max() if w.size else 0.0
-    null = w <= SINGULAR_RTOL * max(top, np.finfo(float).tiny)
+    f, d = equilibrate(np.asarray(fisher, dtype=float))
+    if f.shape[-1] == 0:
+        cond = np.ones(f.shape[:-2])
+        return f.copy(), float(cond) if cond.ndim == 0 else cond, np.zeros(f.shape[:-1], bool)
+    w, v = np.linalg.eigh(f)  # (..., P), (..., P, P)
+    top = np.maximum(w[..., -1:], np.finfo(float).tiny)
+    null = w <= SINGULAR_RTOL * top
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    cov = (v * inv_w) @ v.T * d[:, None] * d[None, :]
-    singular = np.any(np.abs(v[:, null]) > 1e-6, axis=1)
-    cov[singular, :] = np.inf
-    cov[:, singular] = np.inf
-    cond = np.inf if null.any() else float(top / w.min()) if w.size else 1.0
-    return cov, cond, singular
+    cov = (v * inv_w[..., None, :]) @ np.swapaxes(v, -1, -2) * d[..., :, None] * d[..., None, :]
+    singular = np.any((np.abs(v) > 1e-6) & null[..., None, :], axis=-1)
+    cov = np.where(singular[..., :, None] | singular[..., None, :], np.inf, cov)
+    sing = null.any(axis=-1)
+    cond = np.where(sing, np.inf, top[..., 0] / np.where(sing, 1.0, w[..., 0]))
+    return cov, float(cond) if cond.ndim == 0 else cond, singular
 
 
 def kink_sources(model: Model, params: np.ndarray, atol: float = 1e-9) -> np.ndarray:

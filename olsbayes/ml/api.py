@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_rng, integer, positive_float
-from ..crlb import SINGULAR_RTOL, equilibrate
+from ..crlb import SINGULAR_RTOL, bound_covariance
 from ..errors import ConvergenceWarning, InputError, MultimodalWarning
 from ..model import Model
 from .batch import LMOutcome
@@ -46,23 +46,10 @@ def _check(model: object, data: object, n_sources: object, method: object) -> tu
 
 
 def _covariances(model: Model, x: np.ndarray, fisher: np.ndarray | None = None) -> np.ndarray:
-    """Inverse Fisher matrices (T, P, P) at the estimates x (T, P), batched.
-
-    Same rule as :func:`olsbayes.crlb.bound_covariance`, vectorised over trials:
-    of the equilibrated matrices, the pseudo-inverse over the eigenvalues above
-    ``SINGULAR_RTOL`` times the largest, rows/columns of parameters with a
-    component in the null space set to inf.  ``fisher``: the Fisher matrices at x
-    if already known.
-    """
-    f, d = equilibrate(model.fisher(x) if fisher is None else fisher)
-    w, v = np.linalg.eigh(f)  # (T, P), (T, P, P)
-    top = np.maximum(w[:, -1:], np.finfo(float).tiny)
-    null = w <= SINGULAR_RTOL * top
-    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    cov = (v * inv_w[:, None, :]) @ np.swapaxes(v, 1, 2) * d[:, :, None] * d[:, None, :]
-    singular = np.any((np.abs(v) > 1e-6) & null[:, None, :], axis=2)  # (T, P)
-    bad = singular[:, :, None] | singular[:, None, :]
-    return np.where(bad, np.inf, cov)
+    """Inverse Fisher matrices (T, P, P) at the estimates x (T, P), batched: the rule
+    of :func:`olsbayes.crlb.bound_covariance`.  ``fisher``: the Fisher matrices at x
+    if already known."""
+    return bound_covariance(model.fisher(x) if fisher is None else fisher)[0]
 
 
 def fit_ml(

@@ -63,8 +63,8 @@ def score(model: Model, est: np.ndarray, truth: np.ndarray) -> dict[str, np.ndar
     err = _loc_err(model, matched.reshape(-1, k, w), truth.reshape(-1, k, w))
     err[..., -1] = matched.reshape(-1, k, w)[..., -1] - truth.reshape(-1, k, w)[..., -1]
     fisher = model.fisher(truth)
-    covs = [bound_covariance(f) for f in fisher]
-    std = np.sqrt(np.stack([np.diag(c[0]) for c in covs])).reshape(-1, k, w)
+    cov, _, singular = bound_covariance(fisher)  # batched over the trials
+    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1)).reshape(-1, k, w)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(np.isfinite(std), err / std, np.inf)
     loc = err[..., :-1]
@@ -74,7 +74,7 @@ def score(model: Model, est: np.ndarray, truth: np.ndarray) -> dict[str, np.ndar
         "dir_z2": np.mean(z[..., :-1] ** 2, axis=(-1, -2)),
         "int_z2": np.mean(z[..., -1] ** 2, axis=-1),
         "max_z": np.max(np.abs(z), axis=(-1, -2)),
-        "resolvable": np.array([not c[2].any() for c in covs]),
+        "resolvable": ~singular.any(axis=-1),
         "on_kink": np.any(kink_sources(model, truth), axis=-1),
     }
 
