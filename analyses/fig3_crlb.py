@@ -6,7 +6,7 @@ N = 30; (c, d) the same vs N at sigma = 0.01.  Measured points (batched
 ``fit_ml``, T trials per point) over the exact CRLB (inverse Fisher matrix) and
 the paper's closed form Eq. 3, for both sources.  The error std is the root mean
 square error about the true value (bias included), after matching estimated
-to true sources (:func:`olsbayes.ml.estimation_errors`).
+to true sources (:func:`olsbayes.exchange.estimation_errors`).
 
 ``python analyses/fig3_crlb.py`` (T = 500, a minute or two) or ``--full``
 (T = 4000).  Writes ``fig3_crlb.png`` and ``fig3_crlb.csv`` to ``--out``
@@ -29,7 +29,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.ml import estimation_errors, fit_ml  # noqa: E402
+from olsbayes.exchange import estimation_errors  # noqa: E402
+from olsbayes.ml import fit_ml  # noqa: E402
 
 THETA = (0.5, 0.5 + np.pi)
 INTENSITY = (1.0, 0.2)

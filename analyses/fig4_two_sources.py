@@ -38,7 +38,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.ml import estimation_errors, fit_ml  # noqa: E402
+from olsbayes.exchange import estimation_errors  # noqa: E402
+from olsbayes.ml import fit_ml  # noqa: E402
 
 N, SIGMA, CENTRE = 30, 1e-4, 0.1
 BREAK_RATIO = 1.5

@@ -51,7 +51,8 @@ import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes._io import write_text_atomic  # noqa: E402
-from olsbayes.ml import estimation_errors, fit_ml, refine_batch  # noqa: E402
+from olsbayes.exchange import estimation_errors  # noqa: E402
+from olsbayes.ml import fit_ml, refine_batch  # noqa: E402
 
 SIGMAS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4)
 INTENSITIES = np.linspace(1.0, 0.6, 4)

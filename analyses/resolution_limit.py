@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from olsbayes import Model, Ring, crlb_eq4
-from olsbayes.crlb import bound_covariance
+from olsbayes.bounds import bound_covariance
 from olsbayes.errors import OlsBayesWarning
 from olsbayes.select import select_k
 

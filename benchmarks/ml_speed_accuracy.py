@@ -74,7 +74,8 @@ import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes._io import write_text_atomic  # noqa: E402
-from olsbayes.ml import estimation_errors, fit_ml  # noqa: E402
+from olsbayes.exchange import estimation_errors  # noqa: E402
+from olsbayes.ml import fit_ml  # noqa: E402
 from olsbayes.ml.batch import refine_batch  # noqa: E402
 
 

@@ -6,9 +6,9 @@ maximum-likelihood fits, posteriors, evidence for the number of sources, imaging
 and Monte Carlo studies, all judged against the Cramér–Rao lower bound.
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
-from .crlb import CRLBResult, crlb, crlb_eq3, crlb_eq4
+from ._version import __version__
+from .bounds import CRLBResult, crlb, crlb_eq3, crlb_eq4
+from .circular import wrap_angle
 from .errors import (
     ConfigError,
     ConvergenceWarning,
@@ -21,7 +21,7 @@ from .errors import (
     OlsBayesWarning,
     ResolutionWarning,
 )
-from .geometry import Plate, Ring, SensorArray, Sphere, wrap_angle
+from .geometry import Plate, Ring, SensorArray, Sphere
 from .imaging import ImageResult, image
 from .ml import MLResult, fit_ml
 from .model import Model
@@ -32,11 +32,6 @@ from .scene import Scene
 from .select import SelectionResult, select_k
 from .sensitivity import Cosine, CosinePower, CustomSensitivity, Sensitivity, get_sensitivity
 from .studies import run_study
-
-try:
-    __version__ = version("olsbayes")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.0.0+unknown"
 
 __all__ = [
     "image",

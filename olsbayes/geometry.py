@@ -17,17 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._frozen import Frozen
 from ._validation import finite_array, integer, positive_float
+from .circular import TWO_PI, wrap_angle
 from .errors import InputError
 
-__all__ = ["SensorArray", "Ring", "Sphere", "Plate", "wrap_angle"]
-
-TWO_PI = 2.0 * np.pi
-
-
-def wrap_angle(x: np.ndarray | float) -> np.ndarray:
-    """Wrap angles (rad) to the interval (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(x, dtype=float), TWO_PI)
+__all__ = ["SensorArray", "Ring", "Sphere", "Plate"]
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -36,8 +31,8 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
-class SensorArray:
-    """Any array of sub-sensors, e.g. one a user measured.
+class SensorArray(Frozen):
+    """Any array of sub-sensors, e.g. one a user measured (immutable).
 
     Parameters
     ----------
@@ -220,7 +215,19 @@ class Plate(SensorArray):
     """A flat array facing +z, for sources close to it (Fig. 1c).
 
     Sources are 3-D positions with z > 0 in the same length unit as ``pitch``.
+
+    Parameters
+    ----------
+    normals, positions : array_like, shape (N, 3)
+        As for :class:`SensorArray`.
+    pitch : float, optional
+        Spacing of a regular grid of sub-sensors (set by :meth:`grid`).
     """
+
+    def __init__(self, normals: np.ndarray, positions: np.ndarray,
+                 pitch: float | None = None):
+        super().__init__(normals, positions)
+        self.pitch = None if pitch is None else positive_float("pitch", pitch)
 
     @classmethod
     def grid(cls, nx: int, ny: int, pitch: float = 1.0) -> "Plate":
@@ -235,6 +242,4 @@ class Plate(SensorArray):
         gx, gy = np.meshgrid(x, y, indexing="ij")
         pos = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
         normals = np.tile([0.0, 0.0, 1.0], (gx.size, 1))
-        plate = cls(normals, pos)
-        plate.pitch = pitch
-        return plate
+        return cls(normals, pos, pitch)

@@ -13,12 +13,16 @@ matrix product and the law ``g(c)`` a clip -- multiply-adds only.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 
+from ._frozen import Frozen
 from ._validation import as_rng, finite_array, integer, positive_float
+from .circular import wrap_angle
 from .errors import InputError
-from .geometry import SensorArray, lonlat_to_unit, wrap_angle
+from .geometry import SensorArray, lonlat_to_unit
 from .scene import Scene
 from .sensitivity import Sensitivity, get_sensitivity
 
@@ -38,8 +42,11 @@ def _fits_into(small: tuple[int, ...], big: tuple[int, ...]) -> bool:
     return all(a in (1, b) for a, b in zip(reversed(small), reversed(big)))
 
 
-class Model:
-    """Eq. 1 for one sensor array, noise level and sensitivity law.
+_T = TypeVar("_T")
+
+
+class Model(Frozen):
+    """Eq. 1 for one sensor array, noise level and sensitivity law (immutable).
 
     Parameters
     ----------
@@ -50,7 +57,16 @@ class Model:
         units of the readings.
     sensitivity : Sensitivity or str, optional
         Angular law; default the paper's clipped cosine.
+
+    Notes
+    -----
+    A model never changes after construction (:meth:`with_sigma` and
+    :meth:`with_sensitivity` return changed copies), so the constants derived
+    from it -- candidate atoms, compiled-kernel arguments, designs -- are cached
+    on the instance itself (:meth:`memo`) and can never describe another model.
     """
+
+    _mutation_hint = "; use with_sigma() or with_sensitivity() for a changed copy"
 
     def __init__(
         self,
@@ -74,6 +90,38 @@ class Model:
         self._kind = array.source_kind
         self._n_loc = array.n_source_params
         self._n_sensors = array.n_sensors
+        self._memo: dict[Any, Any] = {}
+
+    # -- copies and derived constants ---------------------------------------------
+    def with_sigma(self, sigma: float) -> "Model":
+        """The same array and law with noise standard deviation ``sigma`` (> 0)."""
+        return Model(self.array, sigma, self.sensitivity)
+
+    def with_sensitivity(self, sensitivity: Sensitivity | str | None) -> "Model":
+        """The same array and noise with another sensitivity law."""
+        return Model(self.array, self.sigma, sensitivity)
+
+    def memo(self, key: object, make: Callable[[], _T]) -> _T:
+        """``make()``, computed once per model and ``key`` (a hashable label).
+
+        Holds constants derived from this model alone (grids, atoms, kernel
+        arguments).  The memo belongs to the instance: copies and unpickled models
+        start with an empty one.
+        """
+        try:
+            return self._memo[key]
+        except KeyError:
+            value = self._memo[key] = make()
+            return value
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_memo"] = {}
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.__dict__["_memo"] = {}
 
     # -- layout -----------------------------------------------------------------
     @property

@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._validation import finite_array
+from .circular import wrap_angle
 from .errors import InputError
-from .geometry import wrap_angle
 
 __all__ = ["Scene"]
 

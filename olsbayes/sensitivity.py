@@ -8,19 +8,21 @@ forward model needs dot products only (no trigonometry per sensor-source pair).
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from collections.abc import Callable
 
 import numpy as np
 
+from ._frozen import Frozen
 from ._validation import positive_float
 from .errors import InputError
 
-__all__ = ["Sensitivity", "Cosine", "CosinePower", "CustomSensitivity", "get_sensitivity"]
+__all__ = ["Sensitivity", "Cosine", "CosinePower", "CustomSensitivity", "get_sensitivity",
+           "is_clipped_cosine"]
 
 
-class Sensitivity(ABC):
-    """Interface of a sensitivity law.
+class Sensitivity(Frozen):
+    """Interface of a sensitivity law (immutable).
 
     Subclasses implement :meth:`value` and :meth:`derivative`, both vectorised over
     arrays of ``c`` in [-1, 1].  ``kink`` is True when the law's derivative jumps
@@ -156,6 +158,14 @@ class CustomSensitivity(Sensitivity):
 
     def __repr__(self) -> str:
         return f"CustomSensitivity(name={self.name!r})"
+
+
+def is_clipped_cosine(law: Sensitivity) -> bool:
+    """Whether ``law`` is the paper's clipped cosine itself (:class:`Cosine`, or
+    :class:`CosinePower` with p = 1) -- not a subclass or a custom law that may
+    behave otherwise.  The compiled kernels, the exact enumeration and the kink
+    moves of the fast fit rely on its piecewise-linear form."""
+    return type(law) is Cosine or (type(law) is CosinePower and law.p == 1.0)
 
 
 def get_sensitivity(spec: str | Sensitivity | None = None, **params: float) -> Sensitivity:

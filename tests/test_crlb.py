@@ -31,7 +31,7 @@ from olsbayes import (
     crlb_eq3,
     crlb_eq4,
 )
-from olsbayes.crlb import bound_covariance, kink_sources
+from olsbayes.bounds import bound_covariance, kink_sources
 
 
 def _ratio(n: int, theta: float, sigma: float = 0.01, intensity: float = 1.0):

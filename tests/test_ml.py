@@ -169,7 +169,7 @@ def test_bad_options():
 
 
 def test_estimation_errors_match_sources_before_differencing():
-    from olsbayes.ml import estimation_errors
+    from olsbayes.exchange import estimation_errors
 
     model = ob.Model(ob.Ring(30), sigma=1e-2)
     truth = np.array([-3.0, 1.0, 3.0, 0.2])
@@ -202,7 +202,7 @@ def test_fast_reaches_the_kink_optimum_near_the_truth():
 
 
 def test_batched_covariance_matches_bound_covariance():
-    from olsbayes.crlb import bound_covariance
+    from olsbayes.bounds import bound_covariance
     from olsbayes.ml.api import _covariances
 
     model = ob.Model(ob.Ring(30), sigma=1e-2)
@@ -347,7 +347,7 @@ def test_rival_gap_reports_rival_modes_and_warns():
     data = model.simulate(scene, np.random.default_rng(8), size=40)
     with pytest.warns(ob.MultimodalWarning, match="distinct local optimum"):
         res = fit_ml(model, data, 4)
-    far = np.any(np.abs(ob.ml.estimation_errors(model, res.params, truth)) > 5 * std, axis=1)
+    far = np.any(np.abs(ob.exchange.estimation_errors(model, res.params, truth)) > 5 * std, axis=1)
     assert far.any() and np.all(res.rival_gap[far] < 3.0)
     assert np.all(res.rival_gap >= 0)
     assert np.all(np.isnan(fit_ml(model, data[:2], 4, method="exact").rival_gap))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import olsbayes as ob
-from olsbayes.crlb import kink_sources
+from olsbayes.bounds import kink_sources
 from olsbayes.ml import _fit_kernel, _kernel
 from olsbayes.ml.batch import refine_batch, refine_batch_numpy
 from olsbayes.sensitivity import CustomSensitivity
@@ -273,7 +273,7 @@ def test_compiled_kink_test_matches_crlb(geometry):
 
 
 def test_compiled_covariances_match_numpy():
-    from olsbayes.crlb import SINGULAR_RTOL
+    from olsbayes.bounds import SINGULAR_RTOL
     from olsbayes.ml.api import _covariances
 
     model = ob.Model(ob.Ring(30), 1e-2)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import olsbayes as ob
+
 from olsbayes import (
     Cosine,
     CosinePower,
@@ -227,3 +229,59 @@ def test_empty_scene_is_the_noise_only_model():
     assert model.pack(empty).shape == (0,)
     np.testing.assert_array_equal(model.response(empty), np.zeros(30))
     assert model.unpack(model.pack(empty)).n_sources == 0
+
+
+# -- immutability: nothing a cache is derived from can change ------------------------
+def _attribute_names(obj) -> list[str]:
+    return [n for n in vars(obj) if n != "_frozen"]
+
+
+@pytest.mark.parametrize("make", [
+    lambda: ob.Model(ob.Ring(12), 0.01),
+    lambda: ob.Model(ob.Sphere.grid(4, 5), 0.01, ob.CosinePower(3)),
+    lambda: ob.Model(ob.Plate.grid(3, 3, 0.5), 0.01),
+])
+def test_model_array_and_law_refuse_every_assignment(make):
+    """Every attribute of a model, its array and its law -- all that the cached
+    atoms, kernel arguments and designs are derived from -- refuses assignment and
+    deletion, and the arrays behind them are read-only."""
+    model = make()
+    model.memo("probe", lambda: 1)
+    for obj in (model, model.array, model.sensitivity):
+        names = _attribute_names(obj)
+        assert names or obj is model.sensitivity
+        for name in names + ["sigma", "new_attribute"]:
+            with pytest.raises(AttributeError, match="immutable"):
+                setattr(obj, name, 1.0)
+        for name in names:
+            with pytest.raises(AttributeError, match="immutable"):
+                delattr(obj, name)
+    for arr in (model.array.normals, model.array.positions):
+        if arr is not None:
+            assert not arr.flags.writeable
+
+
+def test_changed_copies_and_copies_never_share_a_cache():
+    """with_sigma / with_sensitivity, copy, deepcopy and pickle give models with their
+    own (empty) caches: a fit of a changed copy uses its own atoms."""
+    import copy
+    import pickle
+
+    from olsbayes.ml.grid import atoms, cached_default_grid
+
+    model = ob.Model(ob.Ring(16), 0.01)
+    grid = cached_default_grid(model)
+    base = atoms(model, grid)
+    sharp = model.with_sensitivity(ob.CosinePower(3))
+    assert sharp.sigma == model.sigma and isinstance(sharp.sensitivity, ob.CosinePower)
+    assert not np.array_equal(atoms(sharp, cached_default_grid(sharp)), base)
+    np.testing.assert_allclose(atoms(sharp, grid), base**3, rtol=1e-14, atol=1e-300)
+    noisy = model.with_sigma(0.5)
+    assert noisy.sigma == 0.5 and noisy.sensitivity is model.sensitivity
+    for other in (copy.copy(model), copy.deepcopy(model), pickle.loads(pickle.dumps(model)),
+                  noisy, sharp):
+        assert other is not model and other._memo is not model._memo
+    for other in (copy.copy(model), copy.deepcopy(model), pickle.loads(pickle.dumps(model))):
+        assert other._memo == {} and other.sigma == model.sigma
+    with pytest.raises(ob.InputError, match="sigma"):
+        model.with_sigma(-1.0)

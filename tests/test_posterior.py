@@ -154,7 +154,7 @@ def test_sphere_and_plate_posteriors(geometry):
     """One source on the sphere (longitude at the +-pi edge) and over a plate: the ML-seeded
     ensemble converges, the circular longitude summary has sd ~ CRLB (not ~pi), the truth
     lies within 4 CRLB sd, and crlb_check raises no flag at high SNR."""
-    from olsbayes.geometry import wrap_angle
+    from olsbayes.circular import wrap_angle
 
     if geometry == "sphere":
         model = Model(Sphere.fibonacci(40), sigma=0.01)
@@ -218,7 +218,7 @@ def test_label_switching_near_pi():
                  n_steps=1500)
     assert res.switch_fraction > 0.2  # the raw draws swap labels
     x = res.flat_samples
-    from olsbayes.geometry import wrap_angle
+    from olsbayes.circular import wrap_angle
 
     # cyclic order from the pivot (the largest gap, near 0): theta[0] ~ pi - 0.4 first
     assert np.all(wrap_angle(x[:, 2] - x[:, 0]) > 0)
@@ -254,7 +254,7 @@ def test_relabel_recovers_permuted_draws():
     blocks = draws.reshape(-1, 3, 2)
     mixed = np.take_along_axis(blocks, perms[:, :, None], axis=1).reshape(-1, 6)
     fixed, _ = relabel(mixed, 3, np.array([True, False]))
-    from olsbayes.geometry import wrap_angle
+    from olsbayes.circular import wrap_angle
 
     fb = fixed.reshape(-1, 3, 2)
     for s in range(3):
@@ -272,7 +272,7 @@ def test_relabel_on_the_sphere():
     perms = np.array([rng.permutation(3) for _ in range(3000)])
     mixed = np.take_along_axis(draws.reshape(-1, 3, 3), perms[:, :, None], axis=1)
     fixed, _ = relabel(mixed.reshape(-1, 9), 3, np.array([True, False, False]))
-    from olsbayes.geometry import wrap_angle
+    from olsbayes.circular import wrap_angle
 
     fb = fixed.reshape(-1, 3, 3)
     for s in range(3):

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from olsbayes import CosinePower, Model, Ring, Scene, Sphere, crlb
-from olsbayes.crlb import SINGULAR_RTOL
+from olsbayes.bounds import SINGULAR_RTOL
 from olsbayes.errors import OlsBayesWarning
 
 # derandomize: the examples are a fixed function of the test (CI must not flake on a

@@ -5,7 +5,7 @@ every log-likelihood ratio unchanged; intensities, their bounds and their
 posterior spread scale by c; the log-likelihood shifts by -N log c.  Checked at
 c = 1e-12 (photocurrents in A) and 1e12, where optimiser tolerances and
 eigenvalue thresholds in absolute or mixed units used to break (see
-``olsbayes.ml.scaling`` and ``olsbayes.crlb.equilibrate``).
+``olsbayes.ml.scaling`` and ``olsbayes.bounds.equilibrate``).
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def test_posterior_start_ball_is_covariant_in_the_readings_unit(c):
     one in units of c (before, the ball's angle spread hit the prior cap at c = 1e12
     and its intensity spread at c = 1e-12), and its square root reproduces it
     entry by entry, relative to each entry's own scale."""
-    from olsbayes.crlb import covariance_root
+    from olsbayes.bounds import covariance_root
     from olsbayes.posterior._start import ball_covariance
     from olsbayes.priors import default_priors
 

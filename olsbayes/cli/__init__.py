@@ -38,7 +38,7 @@ COMMANDS: tuple[str, ...] = (
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser (every subcommand registered)."""
-    from .. import __version__
+    from .._version import __version__
 
     parser = OneLineParser(
         prog="olsbayes",

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from ..bounds import CRLBResult, crlb, crlb_eq3, crlb_eq4
 from ..build import model_from_config, scene_from_config
-from ..crlb import CRLBResult, crlb, crlb_eq3, crlb_eq4
 from ..model import Model
 from ..scene import Scene
 from ._common import add_command, add_config_args, add_json_arg, emit, format_table, load_cli_config

@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from ..bounds import crlb
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import parse_config
-from ..crlb import crlb
 from ._common import (
     DEFAULT_CONFIG,
     add_command,

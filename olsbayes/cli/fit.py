@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 from ..build import data_from_config, model_from_config, scene_from_config
+from ..circular import wrap_angle
 from ..config import read_readings
 from ..errors import InputError
-from ..geometry import wrap_angle
 from ..model import Model
 from ..scene import Scene
 from ._common import (

@@ -22,12 +22,11 @@ building blocks for model selection and simulation studies.
 
 from .api import METHODS, fit_ml
 from .batch import refine_batch
-from .evaluate import estimation_errors
 from .exact import ExactResult, fit_exact
 from .grid import default_grid
 from .result import MLResult
 
 __all__ = [
-    "fit_ml", "MLResult", "METHODS", "refine_batch", "default_grid", "estimation_errors",
+    "fit_ml", "MLResult", "METHODS", "refine_batch", "default_grid",
     "fit_exact", "ExactResult",
 ]

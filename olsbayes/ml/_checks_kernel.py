@@ -5,33 +5,24 @@ selection and :func:`olsbayes.ml.rivals.rival_gap`) are ~15-20 small numpy calls
 each, ~35 us together against a ~300 us fit; compiled they are one call each.
 Same rules and results (angles wrapped to (-pi, pi], sources matched by the
 permutation minimising the summed squared angle error, as in
-:func:`olsbayes.ml.estimation_errors`).
+:func:`olsbayes.exchange.estimation_errors`).
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numba
 import numpy as np
 
-__all__ = ["close_or_weak", "angle_rival_gap", "permutations"]
+__all__ = ["close_or_weak", "angle_rival_gap"]
 
 _TWO_PI = 2.0 * np.pi
-_PERMS: dict[int, np.ndarray] = {}
-
-
-def permutations(k: int) -> np.ndarray:
-    """All K! permutations of range(K), shape (K!, K) (cached)."""
-    if k not in _PERMS:
-        _PERMS[k] = np.array(list(itertools.permutations(range(k))), dtype=np.int64)
-    return _PERMS[k]
 
 
 @numba.njit(cache=True)
 def _wrap(a):  # pragma: no cover - compiled
-    """Angle wrapped to (-pi, pi] (geometry.wrap_angle)."""
+    """Angle wrapped to (-pi, pi] (circular.wrap_angle)."""
     w = a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
     return math.pi if w == -math.pi else w
 

@@ -3,7 +3,7 @@
 For a single data vector the fit's bookkeeping -- kink hops, kink tests, the
 result's log-likelihood, Fisher matrix and covariance -- is a few dozen small
 numpy calls; compiled, each is a single call.  Same formulas as the numpy
-code they replace (``fast.hop_starts``, ``crlb.kink_sources``,
+code they replace (``fast.hop_starts``, ``bounds.kink_sources``,
 ``Model.log_likelihood``/``Model.fisher`` and ``api._covariances``), equal to
 rounding (``hop_starts`` exactly).
 """
@@ -11,12 +11,11 @@ rounding (``hop_starts`` exactly).
 from __future__ import annotations
 
 import math
-import weakref
 
 import numba
 import numpy as np
 
-from ..crlb import equilibrate
+from ..bounds import equilibrate
 from ..model import Model
 from ._kernel import _arrays, _normal_eq
 from ._model_kernel import _residual
@@ -125,15 +124,12 @@ def _cov_all(fisher, rtol, out):  # pragma: no cover - compiled
 
 def covariances(fisher: np.ndarray, rtol: float) -> np.ndarray:
     """Inverse Fisher matrices (T, P, P) by the rule of ``api._covariances`` (finite
-    input): the kernel works on the equilibrated matrices (:func:`olsbayes.crlb.equilibrate`)."""
+    input): the kernel works on the equilibrated matrices (:func:`olsbayes.bounds.equilibrate`)."""
     f, d = equilibrate(np.asarray(fisher, dtype=np.float64))
     f = np.require(f, np.float64, ["C", "W"])
     out = np.empty(f.shape)
     _cov_all(f, float(rtol), out)
     return out * d[:, :, None] * d[:, None, :]
-
-
-_CROSSINGS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 @numba.njit(cache=True)
@@ -147,7 +143,7 @@ def _hops(cross, x, eps, out):  # pragma: no cover - compiled
             th = x[i, 2 * j]
             up, down = np.inf, -np.inf
             for c in cross:
-                y = np.pi - (c - th)  # geometry.wrap_angle: d = pi - y % 2 pi; the
+                y = np.pi - (c - th)  # circular.wrap_angle: d = pi - y % 2 pi; the
                 if 0.0 <= y < _TWO_PI:  # float modulo done by hand where it is one
                     m = y  # subtraction or none (the same bits, ~10x cheaper)
                 elif -_TWO_PI <= y < 0.0:
@@ -165,11 +161,12 @@ def _hops(cross, x, eps, out):  # pragma: no cover - compiled
 
 def hop_starts(model: Model, x: np.ndarray) -> np.ndarray:
     """Compiled :func:`olsbayes.ml.fast.hop_starts` (identical output)."""
-    cross = _CROSSINGS.get(model)
-    if cross is None:
+    def make() -> np.ndarray:
         nrm = model.array.normals
         phi = np.arctan2(nrm[:, 1], nrm[:, 0])
-        cross = _CROSSINGS[model] = np.concatenate([phi + np.pi / 2, phi - np.pi / 2])
+        return np.concatenate([phi + np.pi / 2, phi - np.pi / 2])
+
+    cross = model.memo("hop_crossings", make)
     xx = np.require(x, np.float64, ["C", "W"])
     out = np.empty((xx.shape[0], xx.shape[1], xx.shape[1]))
     _hops(cross, xx, 0.05 * np.pi / model.n_sensors, out)
@@ -206,7 +203,7 @@ def _kinked(kind, nrm, pos, x, atol, out):  # pragma: no cover - compiled
 
 
 def on_kink(model: Model, x: np.ndarray, atol: float) -> np.ndarray:
-    """Compiled ``crlb.kink_sources`` for a kinked law: bool (T, K)."""
+    """Compiled ``bounds.kink_sources`` for a kinked law: bool (T, K)."""
     kind, _, _, nrm, pos = _arrays(model)
     xx = np.require(x, np.float64, ["C", "W"])
     out = np.empty((xx.shape[0], xx.shape[1] // (kind + 2)), np.bool_)

@@ -29,13 +29,12 @@ of single calls bit for bit).  Compiled once per machine (``cache=True``).
 from __future__ import annotations
 
 import math
-import weakref
 
 import numba
 import numpy as np
 
 from ..model import Model
-from ..sensitivity import Cosine, CosinePower
+from ..sensitivity import CosinePower, is_clipped_cosine
 from ._linalg_kernel import _solve_spd
 from ._model_kernel import _LAW_COSINE, _LAW_POWER, _residual
 from ._step_kernel import _step4, _step6, _step8
@@ -56,7 +55,7 @@ LAMBDA_MAX = 1e14
 def law_code(model: Model) -> tuple[int, float] | None:
     """(code, exponent) of the model's law if the kernel implements it, else None."""
     law = model.sensitivity
-    if type(law) is Cosine or (type(law) is CosinePower and law.p == 1.0):
+    if is_clipped_cosine(law):
         return _LAW_COSINE, 1.0
     if type(law) is CosinePower:
         return _LAW_POWER, float(law.p)
@@ -374,20 +373,17 @@ def lm_batch(
     return x, chi2, conv, 2 * n_iter, stalled
 
 
-_ARRAYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def _arrays(model: Model) -> tuple[int, int, float, np.ndarray, np.ndarray]:
     """Kernel arguments describing a model (kind, law, exponent, normals, positions).
 
-    Cached per model (its array and law never change); writeable copies, so that
+    Cached on the model (:meth:`~olsbayes.Model.memo`); writeable copies, so that
     every call has the same array types (one compiled signature).
     """
-    hit = _ARRAYS.get(model)
-    if hit is None:
+    def make() -> tuple[int, int, float, np.ndarray, np.ndarray]:
         code, p = law_code(model)
         nrm = np.array(model.array.normals.T, dtype=np.float64, order="C")  # (D, N)
         pos = model.array.positions
         pos = np.zeros((3, 1)) if pos is None else np.array(pos.T, dtype=np.float64, order="C")
-        hit = _ARRAYS[model] = (KINDS.index(model.kind), code, p, nrm, pos)
-    return hit
+        return KINDS.index(model.kind), code, p, nrm, pos
+
+    return model.memo("lm_arrays", make)

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_rng, integer, positive_float
-from ..crlb import SINGULAR_RTOL, bound_covariance
+from ..bounds import SINGULAR_RTOL, bound_covariance
 from ..errors import ConvergenceWarning, InputError, MultimodalWarning
 from ..model import Model
 from .batch import LMOutcome
@@ -47,7 +47,7 @@ def _check(model: object, data: object, n_sources: object, method: object) -> tu
 
 def _covariances(model: Model, x: np.ndarray, fisher: np.ndarray | None = None) -> np.ndarray:
     """Inverse Fisher matrices (T, P, P) at the estimates x (T, P), batched: the rule
-    of :func:`olsbayes.crlb.bound_covariance`.  ``fisher``: the Fisher matrices at x
+    of :func:`olsbayes.bounds.bound_covariance`.  ``fisher``: the Fisher matrices at x
     if already known."""
     return bound_covariance(model.fisher(x) if fisher is None else fisher)[0]
 

@@ -61,17 +61,17 @@ K = 4 15 | 2.6 ms (with the count: 0.28 | 0.09, 2.1 | 1.1, 28 | 14 ms).
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .._validation import integer
+from ..circular import TWO_PI, wrap_angle
 from ..errors import InputError
-from ..geometry import TWO_PI, Ring, wrap_angle
+from ..geometry import Ring
 from ..model import Model
 from ..scene import Scene
-from ..sensitivity import Cosine, CosinePower
+from ..sensitivity import is_clipped_cosine
 
 __all__ = ["ExactResult", "fit_exact", "crossing_angles", "MAX_SOURCES", "RANK_RTOL"]
 
@@ -161,23 +161,18 @@ def crossing_angles(ring: Ring) -> np.ndarray:
     return c
 
 
-_DESIGNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def _scan_design(model: Model) -> tuple[np.ndarray, ...]:
     """:func:`_design` (c, cols), the states' Gram matrix cols' cols, the crossing
-    directions (M, 2) and the arc widths (M,) of a model, cached per model (its array
-    never changes).
+    directions (M, 2) and the arc widths (M,) of a model, cached on the model.
 
     Private and never written: writeable arrays, so that the compiled scan sees one
     array type whoever calls it.
     """
-    hit = _DESIGNS.get(model)
-    if hit is None:
+    def make() -> tuple[np.ndarray, ...]:
         c, cols = _design(model)
-        hit = _DESIGNS[model] = (c, cols, cols.T @ cols,
-                                 np.column_stack([np.cos(c), np.sin(c)]), _widths(c))
-    return hit
+        return c, cols, cols.T @ cols, np.column_stack([np.cos(c), np.sin(c)]), _widths(c)
+
+    return model.memo("exact_design", make)
 
 
 def _design(model: Model) -> tuple[np.ndarray, np.ndarray]:
@@ -206,8 +201,7 @@ def _check(model: object, data: object, n_sources: object) -> tuple[np.ndarray, 
             "model.array must be a Ring (fit_exact enumerates a ring's horizon "
             f"cells); got {type(model.array).__name__}")
     law = getattr(model, "sensitivity", None)
-    if isinstance(model, Model) and not (
-            type(law) is Cosine or (type(law) is CosinePower and law.p == 1.0)):
+    if isinstance(model, Model) and not is_clipped_cosine(law):
         raise InputError(
             "model.sensitivity must be the clipped cosine (Cosine, 'cosine'); "
             f"got {law!r}")

@@ -57,7 +57,7 @@ import dataclasses
 
 import numpy as np
 
-from ..geometry import wrap_angle
+from ..circular import wrap_angle
 from ..model import Model
 from .batch import LMOutcome, refine_batch
 from .grid import atoms, grid_step
@@ -156,7 +156,7 @@ def _take(out: LMOutcome, rows: np.ndarray) -> LMOutcome:
 
 
 def _kinked(model: Model, x: np.ndarray, atol: float = 1e-6) -> np.ndarray:
-    """:func:`~olsbayes.crlb.kink_sources` of fits x (T, P), compiled: bool (T, K)."""
+    """:func:`~olsbayes.bounds.kink_sources` of fits x (T, P), compiled: bool (T, K)."""
     from . import _fit_kernel  # numba is imported on first use
 
     if not model.sensitivity.kink:

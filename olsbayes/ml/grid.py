@@ -8,13 +8,14 @@ Levenberg–Marquardt refinement, i.e. a fraction of the array's resolution.
 
 from __future__ import annotations
 
-import weakref
+import hashlib
 
 import numpy as np
 
 from .._validation import finite_array, positive_float
+from ..circular import wrap_angle
 from ..errors import InputError
-from ..geometry import lonlat_to_unit, wrap_angle
+from ..geometry import lonlat_to_unit
 from ..model import Model
 
 __all__ = ["default_grid", "cached_default_grid", "atoms", "grid_step"]
@@ -68,17 +69,15 @@ def default_grid(model: Model, density: float | None = None) -> np.ndarray:
     return _plate_grid(model, density)
 
 
-_GRIDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def cached_default_grid(model: Model) -> np.ndarray:
-    """:func:`default_grid` of a model at the default density, cached per model (read-only)."""
-    g = _GRIDS.get(model)
-    if g is None:
-        g = default_grid(model)
-        g.flags.writeable = False
-        _GRIDS[model] = g
-    return g
+    """:func:`default_grid` of a model at the default density, cached on the model
+    (read-only)."""
+    return model.memo("default_grid", lambda: _readonly(default_grid(model)))
 
 
 def check_grid(model: Model, grid: object) -> np.ndarray:
@@ -97,22 +96,23 @@ def check_grid(model: Model, grid: object) -> np.ndarray:
     return g
 
 
-_ATOMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: Grids whose atoms a model keeps at once (the default grid and a few user grids).
+_ATOM_GRIDS = 8
 
 
 def atoms(model: Model, grid: np.ndarray) -> np.ndarray:
-    """Unit-intensity responses of the grid locations, shape (M, N).
+    """Unit-intensity responses of the grid locations, shape (M, N), read-only.
 
-    Cached per model (weakly) and grid, since a model's response never changes.
+    Cached on the model (:meth:`~olsbayes.Model.memo`) per grid content, since a
+    model's response never changes.
     """
-    key = (grid.shape, hash(np.ascontiguousarray(grid).tobytes()))
-    per_model = _ATOMS.setdefault(model, {})
+    flat = np.ascontiguousarray(grid, dtype=float)
+    key = (flat.shape, hashlib.sha1(flat.view(np.uint8)).hexdigest())
+    per_model = model.memo("atoms", dict)
     if key not in per_model:
-        if len(per_model) >= 8:
+        if len(per_model) >= _ATOM_GRIDS:
             per_model.clear()
-        g = model.response(np.column_stack([grid, np.ones(grid.shape[0])]))
-        g.flags.writeable = False
-        per_model[key] = g
+        per_model[key] = _readonly(model.response(np.column_stack([grid, np.ones(grid.shape[0])])))
     return per_model[key]
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize
 
-from ..crlb import kink_sources
+from ..bounds import kink_sources
 from ..model import Model
 from .batch import LMOutcome, _z_floor
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..geometry import Ring
 from ..model import Model
-from ..sensitivity import Cosine, CosinePower
+from ..sensitivity import is_clipped_cosine
 from .batch import LMOutcome
 
 __all__ = ["exact_pairs", "exact_applies", "CLOSE_SPACINGS", "WEAK_RATIO", "SOURCES"]
@@ -41,7 +41,7 @@ def exact_applies(model: Model, k: int) -> bool:
     """Whether K-source fits of this model are escalated (ring, clipped cosine, K in SOURCES)."""
     law = model.sensitivity
     return (k in SOURCES and isinstance(model.array, Ring)
-            and (type(law) is Cosine or (type(law) is CosinePower and law.p == 1.0)))
+            and is_clipped_cosine(law))
 
 
 def exact_pairs(model: Model, data: np.ndarray, out: LMOutcome) -> LMOutcome:

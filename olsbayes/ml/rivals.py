@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..exchange import estimation_errors, permutations
 from ..model import Model
-from .evaluate import estimation_errors
 
 __all__ = ["rival_gap", "rival_gap_numpy", "DISTINCT_STD", "RIVAL_WARN", "RIVAL_RANGE", "TIE"]
 
@@ -75,7 +75,7 @@ def rival_gap(
         from . import _checks_kernel as ck
 
         return ck.angle_rival_gap(x, chi2, alt_x, alt_chi2, std, 0.5 / model.sigma**2, TIE,
-                                  RIVAL_RANGE, ck.permutations(k), DISTINCT_STD)
+                                  RIVAL_RANGE, permutations(k), DISTINCT_STD)
     return rival_gap_numpy(model, x, chi2, alt_x, alt_chi2, std)
 
 

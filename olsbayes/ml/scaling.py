@@ -44,7 +44,7 @@ def scaled_model(model: Model, scale: float) -> Model:
     """The model in readings divided by ``scale`` (sigma / scale); itself for 1."""
     if scale == 1.0:
         return model
-    return Model(model.array, model.sigma / scale, model.sensitivity)
+    return model.with_sigma(model.sigma / scale)
 
 
 def rescale(model: Model, out: LMOutcome, scale: np.ndarray) -> LMOutcome:

@@ -34,8 +34,8 @@ def match_truths(result, truths) -> np.ndarray:
     CRLB-standardised (circular) distance; angles are unwrapped around the
     estimate so they land on the plotted axes.
     """
-    from ..posterior._labels import _assign
-    from ..posterior.audit import unwrap_around
+    from ..circular import unwrap_around
+    from ..exchange import best_permutation, pair_costs
     from ..scene import Scene
 
     x = result.model.pack(truths) if isinstance(truths, Scene) else np.asarray(truths, float)
@@ -52,8 +52,8 @@ def match_truths(result, truths) -> np.ndarray:
     scale = np.where(np.isfinite(result.crlb_std), result.crlb_std, 1.0)[: k * w]
     scale = np.maximum(scale.reshape(k, w).mean(axis=0), 1e-12)
     blocks = full[: k * w].reshape(1, k, w)
-    perm = _assign(blocks, result.estimate[: k * w].reshape(k, w), np.broadcast_to(scale, (k, w)),
-                   per)[0]
+    ref = result.estimate[: k * w].reshape(k, w)
+    perm = best_permutation(pair_costs(blocks, ref, per, np.broadcast_to(scale, (k, w))))[0]
     full[: k * w] = blocks[0, perm].ravel()
     if x.size < result.n_params:
         full[x.size:] = np.nan

@@ -19,12 +19,10 @@ This works for any geometry because distances, not orderings, decide.
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
-from ..geometry import wrap_angle
-from ._logpost import circular_mean, largest_gap_cut
+from ..circular import circular_mean, largest_gap_cut, wrap_angle
+from ..exchange import best_permutation, pair_costs
 
 __all__ = ["relabel", "reference_order", "dominant_permutation", "block_index"]
 
@@ -55,26 +53,6 @@ def _mean_scale(blocks: np.ndarray, periodic: np.ndarray) -> tuple[np.ndarray, n
     dev = _diff(blocks, mean, periodic)
     scale = np.sqrt(np.mean(dev * dev, axis=0))
     return mean, scale
-
-
-def _assign(blocks: np.ndarray, ref: np.ndarray, scale: np.ndarray, periodic: np.ndarray
-            ) -> np.ndarray:
-    """Best permutation per draw: (S, K) with out[s, j] = source of draw s for label j."""
-    k = blocks.shape[1]
-    # cost[s, i, j]: draw s source i against reference source j
-    dev = _diff(blocks[:, :, None, :], ref[None, None, :, :], periodic) / scale[None, None]
-    cost = np.sum(dev * dev, axis=-1)
-    if k <= 7:
-        perms = np.array(list(itertools.permutations(range(k))))  # (K!, K)
-        total = cost[:, perms, np.arange(k)].sum(axis=-1)  # (S, K!)
-        return perms[np.argmin(total, axis=1)]
-    from scipy.optimize import linear_sum_assignment
-
-    out = np.empty((blocks.shape[0], k), dtype=int)
-    for s in range(blocks.shape[0]):  # K > 7 only: one assignment problem per draw
-        rows, cols = linear_sum_assignment(cost[s])
-        out[s, cols] = rows
-    return out
 
 
 def relabel(
@@ -120,7 +98,7 @@ def relabel(
     _, scale = _mean_scale(blocks, periodic)
     scale = np.broadcast_to(np.maximum(scale.mean(axis=0), 1e-300), (k, w))
     for _ in range(max(1, n_iter)):
-        perm = _assign(blocks, ref, scale, periodic)
+        perm = best_permutation(pair_costs(blocks, ref, periodic, scale))
         ordered = np.take_along_axis(blocks, perm[:, :, None], axis=1)
         ref, scale = _mean_scale(ordered, periodic)
         scale = np.maximum(scale, 1e-12 * np.maximum(scale.max(axis=0), 1e-300))

@@ -20,31 +20,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import wrap_angle
+from ..circular import wrap_angle
 from ..priors import LogUniform, ScenePrior
 
-__all__ = ["LogPosterior", "largest_gap_cut", "circular_mean"]
+__all__ = ["LogPosterior"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
-
-
-def circular_mean(a: np.ndarray, axis: int | None = None) -> np.ndarray:
-    """Circular mean of angles (rad) along ``axis``, in (-pi, pi]."""
-    a = np.asarray(a, dtype=float)
-    return wrap_angle(np.arctan2(np.sin(a).mean(axis=axis), np.cos(a).mean(axis=axis)))
-
-
-def largest_gap_cut(angles: np.ndarray) -> float:
-    """The angle (rad) in the middle of the largest gap between ``angles``.
-
-    With no angles the cut is at pi, the usual edge of (-pi, pi].
-    """
-    a = np.sort(wrap_angle(np.ravel(angles)))
-    if a.size == 0:
-        return float(np.pi)
-    gaps = np.diff(np.concatenate([a, a[:1] + 2 * np.pi]))
-    i = int(np.argmax(gaps))
-    return float(wrap_angle(a[i] + gaps[i] / 2))
 
 
 class LogPosterior:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..crlb import bound_covariance, covariance_root
+from ..bounds import bound_covariance, covariance_root
 from ..errors import InputError
 from ..priors import ScenePrior
 

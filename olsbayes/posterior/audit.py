@@ -6,11 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..crlb import kink_sources
-from ..geometry import wrap_angle
+from ..bounds import kink_sources
+from ..circular import wrap_angle
 from .result import PosteriorResult
 
-__all__ = ["unwrap_around", "summary", "crlb_check", "CRLBCheck"]
+__all__ = ["summary", "crlb_check", "CRLBCheck"]
 
 #: Below this ratio I / sd_CRLB(I) a source counts as low-SNR (nonlinear regime).
 LOW_SNR = 10.0
@@ -19,14 +19,6 @@ KINK_SDS = 2.0
 #: CRLB |correlation| above which two parameters count as strongly correlated (between
 #: two sources: near the resolution limit).
 HIGH_CORRELATION = 0.9
-
-
-def unwrap_around(values: np.ndarray, centre: np.ndarray, periodic: np.ndarray) -> np.ndarray:
-    """Angles as ``centre + wrap(value - centre)`` (continuous near +-pi); others unchanged."""
-    out = np.array(values, dtype=float)
-    c = np.asarray(centre, dtype=float)[periodic]
-    out[..., periodic] = c + wrap_angle(out[..., periodic] - c)
-    return out
 
 
 def summary(result: PosteriorResult, hdi_prob: float = 0.94):

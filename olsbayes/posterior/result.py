@@ -104,7 +104,7 @@ class PosteriorResult:
         A source near +-pi then has a continuous, not a split, distribution:
         use this for every linear statistic or plot of an angle.
         """
-        from .audit import unwrap_around
+        from ..circular import unwrap_around
 
         return unwrap_around(self.samples, self.estimate, self.periodic)
 

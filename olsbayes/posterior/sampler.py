@@ -8,13 +8,13 @@ import warnings
 import numpy as np
 
 from .._validation import as_rng, finite_array, integer, positive_float
-from ..crlb import bound_covariance
+from ..bounds import bound_covariance
+from ..circular import circular_mean, largest_gap_cut, wrap_angle
 from ..errors import ConvergenceWarning, InputError
-from ..geometry import wrap_angle
 from ..model import Model
 from ..priors import ScenePrior, default_priors
 from ._labels import block_index, dominant_permutation, relabel
-from ._logpost import LogPosterior, circular_mean, largest_gap_cut
+from ._logpost import LogPosterior
 from ._start import ball_covariance, initial_ensemble, ml_start
 from .result import PosteriorResult
 

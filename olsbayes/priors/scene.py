@@ -29,8 +29,8 @@ import numpy as np
 from scipy.special import gammaln
 
 from .._validation import as_rng, finite_array, integer, positive_float
+from ..circular import wrap_angle
 from ..errors import InputError
-from ..geometry import wrap_angle
 from .univariate import CircularUniform, LogUniform, Prior, SinLatitude, Uniform
 
 __all__ = ["ScenePrior", "default_priors", "data_intensity_bound"]

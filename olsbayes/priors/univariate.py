@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_rng, finite_array, positive_float
+from ..circular import wrap_angle
 from ..errors import InputError
-from ..geometry import wrap_angle
 
 __all__ = [
     "Prior",

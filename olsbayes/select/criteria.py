@@ -85,7 +85,7 @@ def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000,
         Draws from each K's Laplace posterior (4 chains of n_draws / 4).
     rng : Generator or seed
     """
-    from ..crlb import bound_covariance, covariance_root
+    from ..bounds import bound_covariance, covariance_root
     from ..posterior._arviz import from_dict, loo
 
     data = model.check_data(data)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..crlb import bound_covariance
+from ..bounds import bound_covariance
 from ..geometry import lonlat_to_unit
 from ..model import Model
 

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.special import gammaln, log_ndtr
 
 from .._validation import finite_array, positive_float
-from ..crlb import SINGULAR_RTOL, equilibrate
+from ..bounds import SINGULAR_RTOL, equilibrate
 from ..errors import InputError
 
 __all__ = [
@@ -236,7 +236,7 @@ def model_laplace(
     sign, logdet = np.linalg.slogdet(fisher)
     f, d = equilibrate(fisher)
     w = np.linalg.eigvalsh(f)
-    # singular by the same rule as olsbayes.crlb.bound_covariance
+    # singular by the same rule as olsbayes.bounds.bound_covariance
     ok = (sign > 0) & np.isfinite(logdet) & (w[..., 0] > SINGULAR_RTOL * w[..., -1])
     safe = np.where(ok[..., None, None], f, np.eye(x.shape[-1]))
     cov = np.linalg.inv(safe) * d[..., :, None] * d[..., None, :]

@@ -28,7 +28,6 @@ and Kish's effective sample size.  Checked against the exact grid evidence of
 
 from __future__ import annotations
 
-import itertools
 import math
 import time
 from dataclasses import dataclass
@@ -36,8 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_rng, integer, positive_float
-from ..crlb import bound_covariance
+from ..bounds import bound_covariance
 from ..errors import InputError
+from ..exchange import permutations
 from .diagnostics import sensor_spacing
 from .intensity import location_log_weights
 
@@ -270,7 +270,7 @@ def _log_q(comps: list[_Component], prior, loc: np.ndarray) -> np.ndarray:
     density), so no product underflows inside the prior's support.
     """
     k = prior.n_sources
-    perms = np.array(list(itertools.permutations(range(k))))  # (K!, K)
+    perms = permutations(k)  # (K!, K)
     rows = np.arange(k)
     prior_q = np.exp(_log_prior_loc(prior, loc))
     total = np.zeros(loc.shape[0])

@@ -29,10 +29,11 @@ import warnings
 import numpy as np
 
 from ..errors import InputError, OlsBayesWarning
+from ..exchange import match_sources
 from ..geometry import Ring
 from ..model import Model
 from ._work import vectorized
-from .scoring import match_sources, ring_truth, score
+from .scoring import ring_truth, score
 
 __all__ = ["ring_estimate", "parse_method", "OUTPUT_NAMES"]
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from .._io import atomic_path
 from .._validation import integer
+from .._version import __version__
 from ..errors import InputError
 from ._work import is_vectorized, run_chunk
 from .checkpoint import Checkpoint, ChunkRecord, fingerprint_key
@@ -30,12 +31,6 @@ __all__ = ["run_study", "trial_name"]
 def trial_name(trial: Callable) -> str:
     """``module:qualname`` of a trial function (part of a study's fingerprint)."""
     return f"{getattr(trial, '__module__', '?')}:{getattr(trial, '__qualname__', repr(trial))}"
-
-
-def _package_version() -> str:
-    from .. import __version__
-
-    return __version__
 
 
 def _code_hash(trial: Callable) -> str:
@@ -64,7 +59,7 @@ def _fingerprint(trial: Callable, grid: Grid, fixed: dict, n_trials: int, entrop
         "fixed": fixed,
         "n_trials": n_trials,
         "seed": str(entropy),
-        "olsbayes_version": _package_version(),
+        "olsbayes_version": __version__,
     }
 
 

@@ -7,15 +7,14 @@ before any error is measured.
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
-from ..crlb import bound_covariance, kink_sources
-from ..geometry import wrap_angle
+from ..bounds import bound_covariance, kink_sources
+from ..circular import wrap_angle
+from ..exchange import match_sources
 from ..model import Model
 
-__all__ = ["match_sources", "score", "ring_truth", "SCORE_NAMES"]
+__all__ = ["score", "ring_truth", "SCORE_NAMES"]
 
 #: Names returned by :func:`score`.
 SCORE_NAMES = ("dir_err_rms", "dir_crlb_rms", "dir_z2", "int_z2", "max_z", "resolvable",
@@ -28,20 +27,6 @@ def _loc_err(model: Model, est: np.ndarray, truth: np.ndarray) -> np.ndarray:
         d = d.copy()
         d[..., 0] = wrap_angle(d[..., 0])
     return d
-
-
-def match_sources(model: Model, est: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """Permute the sources of ``est`` (T, P) to best match ``truth`` (T, P); returns (T, P)."""
-    k, w = model.n_sources_of(truth), model.n_loc + 1
-    e = est.reshape(est.shape[:-1] + (k, w))
-    t = truth.reshape(truth.shape[:-1] + (k, w))
-    perms = np.array(list(itertools.permutations(range(k))))  # (k!, k)
-    cand = e[..., perms, :]  # (T, k!, k, w)
-    err = _loc_err(model, cand[..., :-1], t[..., None, :, :-1])
-    cost = np.sum(err**2, axis=(-1, -2))  # (T, k!)
-    best = np.argmin(cost, axis=-1)
-    out = np.take_along_axis(cand, best[..., None, None, None], axis=-3)[..., 0, :, :]
-    return out.reshape(est.shape)
 
 
 def score(model: Model, est: np.ndarray, truth: np.ndarray) -> dict[str, np.ndarray]:

@@ -1,0 +1,65 @@
+"""Angles on the circle: wrapping, circular means, the largest-gap cut, unwrapping.
+
+One home for the circular arithmetic that ring angles and sphere longitudes need
+everywhere (fits, posteriors, scores, plots).  Angles are in rad; "wrapped" means
+in the interval (-pi, pi].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["TWO_PI", "wrap_angle", "circular_mean", "largest_gap_cut", "unwrap_around"]
+
+TWO_PI = 2.0 * np.pi
+
+
+def wrap_angle(x: np.ndarray | float) -> np.ndarray:
+    """Angles (rad) wrapped to the interval (-pi, pi], same shape as ``x``."""
+    return np.pi - np.mod(np.pi - np.asarray(x, dtype=float), TWO_PI)
+
+
+def circular_mean(a: np.ndarray, axis: int | None = None) -> np.ndarray:
+    """Circular mean of angles ``a`` (rad) along ``axis``, wrapped to (-pi, pi].
+
+    ``atan2(mean sin a, mean cos a)``: the direction of the mean unit vector.
+    """
+    a = np.asarray(a, dtype=float)
+    return wrap_angle(np.arctan2(np.sin(a).mean(axis=axis), np.cos(a).mean(axis=axis)))
+
+
+def largest_gap_cut(angles: np.ndarray) -> float:
+    """The angle (rad) in the middle of the largest gap between ``angles``.
+
+    Cutting the circle there keeps a cluster of angles in one piece.  With no
+    angles the cut is at pi, the usual edge of (-pi, pi].
+    """
+    a = np.sort(wrap_angle(np.ravel(angles)))
+    if a.size == 0:
+        return float(np.pi)
+    gaps = np.diff(np.concatenate([a, a[:1] + 2 * np.pi]))
+    i = int(np.argmax(gaps))
+    return float(wrap_angle(a[i] + gaps[i] / 2))
+
+
+def unwrap_around(values: np.ndarray, centre: np.ndarray, periodic: np.ndarray) -> np.ndarray:
+    """Periodic columns as ``centre + wrap(value - centre)``, the others unchanged.
+
+    Parameters
+    ----------
+    values : ndarray, shape (..., P)
+    centre : ndarray, shape (P,)
+        The centre of each column (used on the periodic ones only).
+    periodic : ndarray of bool, shape (P,)
+        Which columns are angles.
+
+    Returns
+    -------
+    ndarray, shape (..., P)
+        A copy; periodic columns lie within pi of their centre, continuous across
+        the +-pi edge.
+    """
+    out = np.array(values, dtype=float)
+    c = np.asarray(centre, dtype=float)[periodic]
+    out[..., periodic] = c + wrap_angle(out[..., periodic] - c)
+    return out
