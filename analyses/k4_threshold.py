@@ -5,7 +5,7 @@ Ring of N = 30 clipped-cosine sub-sensors, K = 4 sources with neighbours at leas
 allows), intensities a random order of 1.0, 0.867, 0.733, 0.6 (as in
 ``benchmarks/ml_speed_accuracy.py``), scenes with a singular Fisher matrix drawn
 again; plus that benchmark's fixed K = 4 scene.  Per scene and noise sigma, T
-data vectors are fitted by the *exact* global ML (:func:`olsbayes.ml.fit_exact`,
+data vectors are fitted by the *exact* global ML (``fit_ml(method="exact")``,
 so no search failure enters) and, as a local oracle that cannot jump to a rival
 mode, by LM started at the truth.  Printed and saved per sigma:
 

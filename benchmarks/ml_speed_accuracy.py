@@ -27,7 +27,7 @@ in a rival mode with the old 3-subset search (now 24 subsets from K = 4 on).
 Methods: ``fast`` (one ``fit_ml`` call per data vector), ``batch`` (one ``fit_ml``
 call on all T data vectors, time divided by T), ``multistart`` (the paper's
 baseline: 20 pseudo-random starts + L-BFGS-B, on the first T_ms data vectors)
-and ``exact`` (:func:`~olsbayes.ml.fit_exact`, one batched call: the global
+and ``exact`` (``fit_ml(method="exact")``, one batched call: the global
 optimum, by enumerating the ring's linear cells).  The exact row is the
 reference for the global-optimum share, and its efficiency is that of the ML
 estimator itself: where it is below 1 (K = 4 at sigma = 1e-2, where another
@@ -75,8 +75,8 @@ import numpy as np  # noqa: E402
 import olsbayes as ob  # noqa: E402
 from olsbayes._io import write_text_atomic  # noqa: E402
 from olsbayes.exchange import estimation_errors  # noqa: E402
-from olsbayes.ml import fit_ml  # noqa: E402
-from olsbayes.ml.batch import refine_batch  # noqa: E402
+from olsbayes.ml import MultistartOptions, fit_ml  # noqa: E402
+from olsbayes.ml.lm import refine_batch  # noqa: E402
 
 
 def settings() -> list[tuple[str, float, ob.Scene]]:
@@ -99,7 +99,7 @@ def identifiability(model: ob.Model, scene: ob.Scene, std: np.ndarray) -> str:
     truth = model.canonical(model.pack(scene))
     mu = model.response(truth)
     parts = []
-    for meth, opts in (("fast", {}), ("multistart", dict(rng=0, n_starts=200))):
+    for meth, opts in (("fast", {}), ("multistart", dict(rng=0, options=MultistartOptions(200)))):
         r = fit_ml(model, mu, scene.n_sources, method=meth, **opts)
         resid = float(np.max(np.abs(model.response(r.params) - mu)))
         dist = float(np.max(np.abs(estimation_errors(model, r.params, truth)) / std))

@@ -269,6 +269,6 @@ def test_fit_exact_method_ring_only(tmp_path, capsys):
     cfg.write_text(SPHERE_TOML)
     code, _, err = run_cli(capsys, "fit", str(cfg), "--method", "exact")
     assert_one_line_error(code, err)
-    assert "model.array must be a Ring" in err
+    assert "needs a Ring model" in err
     code, out, _ = run_cli(capsys, "fit", "--method", "exact", "--json")
     assert code == 0 and json.loads(out)["method"] == "exact"

@@ -10,7 +10,7 @@ import pytest
 
 import olsbayes as ob
 from olsbayes.errors import ConvergenceWarning, InputError
-from olsbayes.ml import MLResult, fit_ml
+from olsbayes.ml import FastOptions, MLResult, MultistartOptions, fit_ml
 
 
 def _errors(model: ob.Model, est: np.ndarray, scene: ob.Scene) -> np.ndarray:
@@ -91,7 +91,8 @@ def test_batch_equals_loop():
 def test_fast_matches_multistart_on_easy_scenes(model, scene, k):
     data = model.simulate(scene, 21, size=2)
     fast = fit_ml(model, data, k)
-    multi = fit_ml(model, data, k, method="multistart", rng=22, n_starts=6)
+    multi = fit_ml(model, data, k, method="multistart", rng=22,
+                   options=MultistartOptions(n_starts=6))
     # the fast optimum is at least as good, and the same point when multistart found it
     assert np.all(fast.log_likelihood >= multi.log_likelihood - 1e-7)
     same = multi.log_likelihood >= fast.log_likelihood - 1e-7
@@ -134,7 +135,7 @@ def test_nonconvergence_is_reported_and_warned():
     model = ob.Model(ob.Ring(30), sigma=1e-2)
     data = model.simulate(ob.Scene(directions=[0.5, 2.0], intensities=[1, 1]), 6, size=4)
     with pytest.warns(ConvergenceWarning, match="did not meet"):
-        res = fit_ml(model, data, 2, max_iter=1, n_restarts=0)
+        res = fit_ml(model, data, 2, options=FastOptions(max_iter=1, n_restarts=0))
     assert not res.converged.all()
 
 
@@ -163,7 +164,8 @@ def test_bad_options():
     with pytest.raises(InputError, match="grid"):
         fit_ml(model, np.zeros(30), 1, grid=np.zeros((5, 2)))
     with pytest.raises(InputError, match="n_starts"):
-        fit_ml(model, np.zeros(30), 1, method="multistart", n_starts=0)
+        fit_ml(model, np.zeros(30), 1, method="multistart",
+               options=MultistartOptions(n_starts=0))
     with pytest.raises(InputError, match="rng"):
         fit_ml(model, np.zeros(30), 1, rng=-1)
 
@@ -203,13 +205,12 @@ def test_fast_reaches_the_kink_optimum_near_the_truth():
 
 def test_batched_covariance_matches_bound_covariance():
     from olsbayes.bounds import bound_covariance
-    from olsbayes.ml.api import _covariances
 
     model = ob.Model(ob.Ring(30), sigma=1e-2)
     x = np.array([[-1.0, 1.0, 2.0, 0.5],  # regular
                   [0.3, 1.0, 0.3, 0.5],  # coincident sources: singular Fisher
                   [0.3, 1.0, 2.5, 0.0]])  # a switched-off source: its angle unidentifiable
-    cov = _covariances(model, x)
+    cov = bound_covariance(model.fisher(x))[0]
     for xi, ci in zip(x, cov):
         ref = bound_covariance(model.fisher(xi))[0]
         np.testing.assert_array_equal(np.isinf(ci), np.isinf(ref))
@@ -248,21 +249,18 @@ def test_kink_hops_reach_the_neighbouring_cell_minimum():
     (0.1, [0.5, 0.5 + np.pi], [1.0, 0.2]),  # Fig. 3, many fits end on a kink
     (1e-2, [0.37, 2.59, 4.82], [1.0, 0.8, 0.6]),
 ])
-def test_dedupe_of_runs_keeps_every_optimum(sigma, directions, intensities, monkeypatch):
+def test_dedupe_of_runs_keeps_every_optimum(sigma, directions, intensities):
     """Runs stopped on reaching an optimum already found for their trial
-    (fast.DEDUPE_TOL) change no fit beyond LM's own tolerance: two runs to one
+    (FastOptions.dedupe_tol) change no fit beyond LM's own tolerance: two runs to one
     minimum agree in chi^2 to ~ftol * chi^2 = 1e-10 * N (measured: <= 1e-12 in
     log L over 3000 fits of each benchmark setting), with fewer evaluations."""
-    from olsbayes.ml import fast
-
     model = ob.Model(ob.Ring(30), sigma)
     scene = ob.Scene(directions=directions, intensities=intensities)
     data = model.simulate(scene, 11, size=150)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         dedup = fit_ml(model, data, scene.n_sources)
-        monkeypatch.setattr(fast, "DEDUPE_TOL", 0.0)
-        full = fit_ml(model, data, scene.n_sources)
+        full = fit_ml(model, data, scene.n_sources, options=FastOptions(dedupe_tol=0.0))
     np.testing.assert_allclose(dedup.log_likelihood, full.log_likelihood, rtol=0,
                                atol=1e-10 * model.n_sensors)
     assert dedup.n_evaluations.sum() < 0.9 * full.n_evaluations.sum()
@@ -284,7 +282,7 @@ def test_k4_search_reaches_the_truth_basin_of_a_near_ambiguous_scene():
     ref = ob.ml.refine_batch(model, data, np.repeat(truth[None], 20, axis=0))
     ll_truth_basin = model.log_likelihood(ref.x, data)
     new = fit_ml(model, data, 4)
-    old = fit_ml(model, data, 4, n_coarse=3, warn=False).log_likelihood
+    old = fit_ml(model, data, 4, options=FastOptions(n_coarse=3), warn=False).log_likelihood
     assert np.all(new.log_likelihood >= ll_truth_basin - 1e-6)
     assert np.mean(old < ll_truth_basin - 1.0) > 0.5  # the trap is real for the old search
 
@@ -314,13 +312,64 @@ def test_exact_method_is_the_global_optimum_of_close_pairs():
 
 def test_exact_method_refuses_other_models_and_large_k():
     sphere = ob.Model(ob.Sphere.fibonacci(40), 1e-2)
-    with pytest.raises(InputError, match="model.array must be a Ring"):
+    with pytest.raises(InputError, match="needs a Ring model"):
         fit_ml(sphere, np.zeros(40), 1, method="exact")
     cos2 = ob.Model(ob.Ring(30), 1e-2, sensitivity=ob.CosinePower(2.0))
     with pytest.raises(InputError, match="clipped cosine"):
         fit_ml(cos2, np.zeros(30), 1, method="exact")
     with pytest.raises(InputError, match="n_sources"):
         fit_ml(ob.Model(ob.Ring(30), 1e-2), np.zeros(30), 5, method="exact")
+    with pytest.raises(InputError, match="takes no options"):
+        fit_ml(ob.Model(ob.Ring(30), 1e-2), np.zeros(30), 1, method="exact",
+               options=FastOptions())
+
+
+@pytest.mark.parametrize("method, options, match", [
+    ("fast", MultistartOptions(), "must be a FastOptions"),
+    ("multistart", FastOptions(), "must be a MultistartOptions"),
+    ("fast", {"n_restarts": 2}, "must be a FastOptions"),
+    ("slow", None, "method must be one of"),
+])
+def test_options_must_belong_to_the_method(method, options, match):
+    model = ob.Model(ob.Ring(12), 1e-2)
+    with pytest.raises(InputError, match=match):
+        fit_ml(model, np.zeros(12), 1, method, options=options)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("n_restarts", -1), ("n_restarts", 65), ("restart_scale", 0.0), ("max_iter", 0),
+    ("n_coarse", 65), ("tuple_budget", 0), ("runners_up", -1), ("max_sweeps", 0),
+    ("dedupe_tol", -1e-4), ("close_spacings", 0.0), ("weak_ratio", -0.5),
+    ("pursuit", "yes"), ("kink_cuts", 1), ("n_restarts", 2.5),
+])
+def test_fast_options_refuse_bad_values_before_any_work(field, value):
+    with pytest.raises(InputError, match=field):
+        FastOptions(**{field: value})
+
+
+@pytest.mark.parametrize("field, value", [("n_starts", 0), ("max_iter", 0), ("n_starts", 1.5)])
+def test_multistart_options_refuse_bad_values(field, value):
+    with pytest.raises(InputError, match=field):
+        MultistartOptions(**{field: value})
+
+
+def test_fast_options_per_k_defaults_and_structural_refusals():
+    """None fields take their per-K defaults; settings a model cannot honour raise."""
+    ring = ob.Model(ob.Ring(30), 1e-2)
+    sphere = ob.Model(ob.Sphere.fibonacci(40), 1e-2)
+    r3, r4 = FastOptions().resolve(ring, 3), FastOptions().resolve(ring, 4)
+    assert (r3.n_coarse, r3.distinct_modes, r3.tuple_budget, r3.runners_up, r3.escalate) == (
+        3, True, 3000, 0, True)
+    assert (r4.n_coarse, r4.pursuit, r4.single_precision, r4.escalate) == (24, False, True, False)
+    s2 = FastOptions().resolve(sphere, 2)
+    assert (s2.escalate, s2.kink_hops, s2.runners_up) == (False, False, 2)
+    assert FastOptions(n_coarse=5).resolve(ring, 4).n_coarse == 5
+    with pytest.raises(InputError, match="escalate=True"):
+        FastOptions(escalate=True).resolve(sphere, 2)
+    with pytest.raises(InputError, match="kink_hops=True"):
+        FastOptions(kink_hops=True).resolve(sphere, 2)
+    with pytest.raises(InputError, match="escalate=True"):
+        fit_ml(sphere, np.zeros(40), 2, options=FastOptions(escalate=True))
 
 
 def test_rival_gap_reports_rival_modes_and_warns():
@@ -351,16 +400,15 @@ def test_rival_gap_reports_rival_modes_and_warns():
     assert far.any() and np.all(res.rival_gap[far] < 3.0)
     assert np.all(res.rival_gap >= 0)
     assert np.all(np.isnan(fit_ml(model, data[:2], 4, method="exact").rival_gap))
-    multi = fit_ml(model, data[:1], 4, method="multistart", rng=3, n_starts=8, warn=False)
+    multi = fit_ml(model, data[:1], 4, method="multistart", rng=3,
+                   options=MultistartOptions(n_starts=8), warn=False)
     assert not np.isnan(multi.rival_gap)
 
 
-def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum(monkeypatch):
+def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum():
     """K = 2, 3 ring fits with two sources < 4 spacings apart or an intensity ~0 are
     refitted by enumeration: the fast result is then the global optimum; Fig. 3's pair is
     not touched (same fit with the escalation switched off)."""
-    import olsbayes.ml.pairs as pairs
-
     model = ob.Model(ob.Ring(30), 1e-4)
     rng = np.random.default_rng(43)
     h = 2 * np.pi / 30
@@ -385,15 +433,13 @@ def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum(monke
     data = fig3.simulate(ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2]),
                          rng, size=20)
     on = fit_ml(fig3, data, 2)
-    monkeypatch.setattr(pairs, "CLOSE_SPACINGS", 0.0)
-    monkeypatch.setattr(pairs, "WEAK_RATIO", -1.0)
-    off = fit_ml(fig3, data, 2)
+    off = fit_ml(fig3, data, 2, options=FastOptions(escalate=False))
     np.testing.assert_array_equal(on.params, off.params)
 
 
 def test_compiled_post_fit_checks_match_numpy():
     """Rival gaps and the close/weak selection: compiled == numpy on random fits."""
-    from olsbayes.ml import _checks_kernel as ck
+    from olsbayes.ml._numba import escalate as ck
     from olsbayes.ml.rivals import rival_gap, rival_gap_numpy
 
     model = ob.Model(ob.Ring(30), 1e-2)

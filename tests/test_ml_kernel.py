@@ -1,4 +1,4 @@
-"""The compiled LM kernel (olsbayes.ml._kernel) against the numpy reference.
+"""The compiled LM kernel (olsbayes.ml._numba.lm) against the numpy LM (olsbayes.ml.lm).
 
 Both run the same bounded Levenberg–Marquardt; they differ only in rounding
 (summation order, LU instead of LAPACK's solve).  Both stop when an accepted
@@ -15,8 +15,10 @@ import pytest
 
 import olsbayes as ob
 from olsbayes.bounds import kink_sources
-from olsbayes.ml import _fit_kernel, _kernel
-from olsbayes.ml.batch import refine_batch, refine_batch_numpy
+from olsbayes.ml._numba import fit as _fit_kernel
+from olsbayes.ml._numba import lm as _kernel
+from olsbayes.ml._numba import refine as _refine_kernel
+from olsbayes.ml.lm import Dedupe, refine_batch, refine_batch_numpy
 from olsbayes.sensitivity import CustomSensitivity
 
 FTOL = 1e-10
@@ -210,31 +212,6 @@ def test_spd_solve_falls_back_to_lu():
         np.testing.assert_allclose(out, np.linalg.solve(m, b), rtol=1e-13, atol=1e-14)
 
 
-@pytest.mark.parametrize("p", [4, 6, 8])
-def test_unrolled_step_equals_generic_exactly(p):
-    """The straight-line damped steps for small P give the generic step's numbers, bit for bit."""
-    from olsbayes.ml import _step_kernel
-
-    unrolled = getattr(_step_kernel, f"_step{p}")
-    rng = np.random.default_rng(p)
-    ad, gm = np.empty((p, p)), np.empty(p)
-    fx, s1, s2 = np.empty(p, np.bool_), np.empty(p), np.empty(p)
-    for trial in range(40):
-        jt = rng.standard_normal((p, 32)) * 10.0 ** rng.uniform(-4, 2, (p, 1))
-        a = jt @ jt.T
-        a = np.tril(a) + np.tril(a, -1).T  # exactly symmetric, as _normal_eq makes it
-        g = rng.standard_normal(p)
-        x = np.where(rng.random(p) < 0.3, 0.0, rng.random(p))
-        fz = rng.random(p) < 0.15
-        d1 = (2, 3 if p % 3 == 0 else 4)[trial % 2]
-        for lam in (1e-12, 1e-3, 7.0):
-            pred1 = _kernel._damped_step(a, g, x, fz, lam, d1, ad, gm, fx, s1)
-            pred2, ok = unrolled(a, g, x, fz, lam, d1, fx, s2)
-            assert ok and pred1 == pred2 and np.array_equal(s1, s2)
-    a = np.diag(np.r_[-1.0, np.ones(p - 1)])  # not SPD: left to the generic LU path
-    assert not unrolled(a, np.ones(p), np.ones(p), np.zeros(p, np.bool_), 1e-3, 2, fx, s2)[1]
-
-
 def test_refine_batch_shape_errors():
     model = ob.Model(ob.Ring(30), 1e-2)
     data, x0 = np.zeros((3, 30)), np.zeros((3, 4))
@@ -245,14 +222,14 @@ def test_refine_batch_shape_errors():
 
 
 def test_compiled_hop_starts_identical():
-    from olsbayes.ml.fast import hop_starts
+    from olsbayes.ml.fast.refine import hop_starts
 
     ring = ob.Ring(30)
     model = ob.Model(ring, 1e-2)
     rng = np.random.default_rng(25)
     x = np.stack([rng.uniform(-4, 4, (50, 3)), rng.uniform(0, 1, (50, 3))], axis=-1).reshape(50, 6)
     x[0, 0] = ring.angles[2] + np.pi / 2  # exactly on a crossing
-    np.testing.assert_array_equal(_fit_kernel.hop_starts(model, x), hop_starts(model, x))
+    np.testing.assert_array_equal(_refine_kernel.hop_starts(model, x), hop_starts(model, x))
 
 
 @pytest.mark.parametrize("geometry", ["ring", "sphere", "plate"])
@@ -268,13 +245,12 @@ def test_compiled_kink_test_matches_crlb(geometry):
         model = ob.Model(ob.Plate.grid(4, 4, pitch=1.0), 1e-3)
         x = np.array([[0.0, 0.0, 0.0, 1.0], [1.0, 1.0, 2.0, 1.0]])  # z = 0: on the kink
     for atol in (1e-6, 0.05):
-        np.testing.assert_array_equal(_fit_kernel.on_kink(model, x, atol),
+        np.testing.assert_array_equal(_refine_kernel.on_kink(model, x, atol),
                                       kink_sources(model, x, atol=atol))
 
 
 def test_compiled_covariances_match_numpy():
-    from olsbayes.bounds import SINGULAR_RTOL
-    from olsbayes.ml.api import _covariances
+    from olsbayes.bounds import SINGULAR_RTOL, bound_covariance
 
     model = ob.Model(ob.Ring(30), 1e-2)
     x = np.array([[0.4, 1.0, 2.5, 0.6],  # regular
@@ -282,7 +258,7 @@ def test_compiled_covariances_match_numpy():
                   [0.4, 1.0, 2.5, 0.0]])  # zero intensity: its angle unidentified
     fisher = model.fisher(x)
     a = _fit_kernel.covariances(fisher, SINGULAR_RTOL)
-    b = _covariances(model, x, fisher)
+    b = bound_covariance(fisher)[0]
     np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
     assert np.isinf(a[1:]).any() and not np.isinf(a[0]).any()
     fin = np.isfinite(b)
@@ -297,15 +273,17 @@ def test_kink_cuts_same_best_fewer_evaluations():
     """LM with steps cut at sub-sensor horizons (kinks=True), Fig. 3 at sigma = 0.1:
     per fit the best candidate is as good (to ftol) and the runs that end on a kink
     take far fewer evaluations than zig-zagging onto it (measured ~98 -> ~10)."""
-    from olsbayes.ml.fast import _kinked
-    from olsbayes.ml.grid import atoms, cached_default_grid
-    from olsbayes.ml.search import grid_search
+    from reference.search_numpy import search_options
+
+    from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.fast.refine import _kinked
+    from olsbayes.ml.fast.search import grid_search
 
     model = ob.Model(ob.Ring(30), 0.1)
     scene = ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2])
     data = model.simulate(scene, 5, size=150)
     grid = cached_default_grid(model)
-    idx, inten, _ = grid_search(atoms(model, grid), data, 2)
+    idx, inten, _ = grid_search(atoms(model, grid), data, 2, search_options(2))
     t, c = idx.shape[:2]
     x0 = np.concatenate([grid[idx], inten[..., None]], axis=-1).reshape(t * c, -1)
     rep = np.repeat(data, c, axis=0)
@@ -325,7 +303,7 @@ def test_known_cell_matches_sub_sensor_visibility():
     """_known_cell finds the known optimum whose sub-sensor visibility pattern the
     iterate shares (read off the Jacobian's intensity rows, max(cos, 0)); a known
     optimum with a source on a horizon has no cell (ambiguous)."""
-    from olsbayes.ml._model_kernel import _residual
+    from olsbayes.ml._numba.model import _residual
 
     model = ob.Model(ob.Ring(12), 0.05)
     kind, law, p, nrm, pos = _kernel._arrays(model)
@@ -342,3 +320,48 @@ def test_known_cell_matches_sub_sensor_visibility():
                       ([np.pi / 2 + 0.01, 1.0, 2.0, 0.5], -1)):  # next to the ambiguous one
         _residual(kind, law, p, nrm, pos, np.array(x), s, jt[:, :12], r[:12], True)
         assert _kernel._known_cell(jt, vis, ok, 3) == expect
+
+
+def test_numpy_lm_stops_at_known_optima_like_the_kernel():
+    """Dedupe on the numpy path (custom laws): the starts of a group run one after
+    another as in the kernel, so a run that reaches its group's known optimum stops
+    there -- the same best optimum per group as without dedupe (to ftol), in fewer
+    evaluations, and the same as the compiled path of the equal built-in law."""
+    law = CustomSensitivity(lambda c: np.maximum(c, 0.0) ** 3,
+                            lambda c: 3 * np.maximum(c, 0.0) ** 2)
+    custom = ob.Model(ob.Ring(24), 1e-2, law)
+    builtin = ob.Model(ob.Ring(24), 1e-2, ob.CosinePower(3))
+    scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
+    t, c = 6, 5
+    data = custom.simulate(scene, 31, size=t)
+    x0 = _starts(custom, custom.pack(scene), 32, t * c, 0.05)
+    rep = np.repeat(data, c, axis=0)
+    base = np.full((t, x0.shape[1]), np.nan)
+    dedupe = Dedupe(group=c, base=base, tol=1e-4)
+    plain = refine_batch(custom, rep, x0)
+    fast = refine_batch(custom, rep, x0, dedupe=dedupe)
+    comp = refine_batch(builtin, rep, x0, dedupe=dedupe)
+    best = [o.chi2.reshape(t, c).min(axis=1) for o in (plain, fast, comp)]
+    np.testing.assert_allclose(best[1], best[0], rtol=10 * FTOL)
+    np.testing.assert_allclose(best[2], best[0], rtol=10 * FTOL)
+    assert fast.n_evaluations.sum() < plain.n_evaluations.sum()
+    assert np.all(fast.converged)
+    # a run stopped at a known optimum reports a point within tol of it
+    again = refine_batch(custom, rep, np.repeat(plain.x[::c], c, axis=0),
+                         dedupe=Dedupe(group=c, base=plain.x[::c], tol=1e-4))
+    assert np.all(again.n_evaluations <= 2 * 2)
+
+
+def test_fast_fit_of_a_custom_law_equals_the_builtin_law():
+    """The whole fast fit on the numpy LM path (a custom law) reaches the optima of
+    the compiled path of the same built-in law: the same algorithm on both paths."""
+    law = CustomSensitivity(lambda c: np.maximum(c, 0.0) ** 3,
+                            lambda c: 3 * np.maximum(c, 0.0) ** 2)
+    custom = ob.Model(ob.Ring(24), 1e-2, law)
+    builtin = ob.Model(ob.Ring(24), 1e-2, ob.CosinePower(3))
+    scene = ob.Scene(directions=[0.4, 2.5, -1.7], intensities=[1.0, 0.6, 0.8])
+    data = custom.simulate(scene, 33, size=20)
+    a = ob.fit_ml(custom, data, 3, warn=False)
+    b = ob.fit_ml(builtin, data, 3, warn=False)
+    np.testing.assert_allclose(a.log_likelihood, b.log_likelihood, rtol=0,
+                               atol=10 * FTOL * custom.n_sensors)

@@ -1,12 +1,14 @@
-"""The fast ML fit's compiled grid and K-tuple search (olsbayes.ml._search_kernel,
-olsbayes.ml._tuple_kernel) against the numpy references in olsbayes.ml.search and
-olsbayes.ml.tuples: the same candidates (scores differ by rounding only), batch ==
-loop, and the tuple scores == each tuple's own least squares."""
+"""The fast ML fit's compiled grid and K-tuple search (olsbayes.ml._numba.search,
+olsbayes.ml._numba.tuples) against the numpy references in tests/reference: the
+same candidates (scores differ by rounding only), batch == loop, and the tuple
+scores == each tuple's own least squares."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference.search_numpy import grid_search_numpy, plans, search_options
+from reference.tuples_numpy import tuple_scores, tuple_search
 
 import olsbayes as ob
 
@@ -15,8 +17,8 @@ import olsbayes as ob
 def test_compiled_search_matches_numpy(case):
     """Compiled grid search == numpy reference: the same candidate atoms (scores differ
     by rounding only, so a flip needs a near-exact tie: allowed in <= 1 % of trials)."""
-    from olsbayes.ml.grid import atoms, default_grid
-    from olsbayes.ml.search import grid_search, grid_search_numpy
+    from olsbayes.ml.atoms import atoms, default_grid
+    from olsbayes.ml.fast.search import grid_search
 
     if case.startswith("ring"):
         k = int(case[-1])
@@ -31,8 +33,8 @@ def test_compiled_search_matches_numpy(case):
         scene = ob.Scene(positions=[[2.0, 2.5, 3.0]], intensities=[10.0])
     data = model.simulate(scene, 21, size=100)
     g = atoms(model, default_grid(model))
-    a_idx, a_int, a_rss = grid_search(g, data, k)
-    b_idx, b_int, b_rss = grid_search_numpy(g, data, k)
+    a_idx, a_int, a_rss = grid_search(g, data, k, search_options(k))
+    b_idx, b_int, b_rss = grid_search_numpy(g, data, k, search_options(k))
     assert a_idx.shape == b_idx.shape
     same = np.all(a_idx == b_idx, axis=(1, 2))
     assert same.mean() >= 0.99
@@ -46,38 +48,38 @@ def test_search_without_pursuit_is_the_tuples():
     """grid_search(pursuit=False) (the fast fit's search at K = 4): exactly the coarse
     subsets' best tuples (the last columns of the full search), compiled == numpy;
     with no coarse plan (n_coarse = 0) the pursuit runs anyway."""
-    from olsbayes.ml.grid import atoms, default_grid
-    from olsbayes.ml.search import grid_search, grid_search_numpy
-    from olsbayes.ml.tuples import tuple_plans
+    from olsbayes.ml.atoms import atoms, default_grid
+    from olsbayes.ml.fast.search import grid_search
 
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=0.37 + np.radians([0.0, 60.0, 150.0, 260.0]),
                      intensities=np.linspace(1.0, 0.6, 4))
     data = model.simulate(scene, 23, size=40)
     g = atoms(model, default_grid(model))
-    n_p = len(tuple_plans(g, 4, 6))
-    full = grid_search(g, data, 4, n_coarse=6)
-    only = grid_search(g, data, 4, n_coarse=6, pursuit=False)
+    n_p = len(plans(g, 4, 6))
+    full = grid_search(g, data, 4, search_options(4, n_coarse=6))
+    only = grid_search(g, data, 4, search_options(4, n_coarse=6, pursuit=False))
     assert only[0].shape == (40, n_p, 4)
     for a, b in zip(only, full):
         np.testing.assert_array_equal(a, b[:, -n_p:])
-    ref = grid_search_numpy(g, data, 4, n_coarse=6, pursuit=False)
+    ref = grid_search_numpy(g, data, 4, search_options(4, n_coarse=6, pursuit=False))
     assert np.mean(np.all(ref[0] == only[0], axis=(1, 2))) >= 0.99
-    np.testing.assert_array_equal(grid_search(g, data, 4, n_coarse=0, pursuit=False)[0],
-                                  grid_search(g, data, 4, n_coarse=0)[0])
+    np.testing.assert_array_equal(
+        grid_search(g, data, 4, search_options(4, n_coarse=0, pursuit=False))[0],
+        grid_search(g, data, 4, search_options(4, n_coarse=0))[0])
 
 
 def test_compiled_search_batch_equals_loop():
-    from olsbayes.ml.grid import atoms, default_grid
-    from olsbayes.ml.search import grid_search
+    from olsbayes.ml.atoms import atoms, default_grid
+    from olsbayes.ml.fast.search import grid_search
 
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=[0.4, 2.5, -1.9], intensities=[1.0, 0.7, 0.5])
     data = model.simulate(scene, 22, size=8)
     g = atoms(model, default_grid(model))
-    full = grid_search(g, data, 3)
+    full = grid_search(g, data, 3, search_options(3))
     for i in range(8):
-        one = grid_search(g, data[i : i + 1], 3)
+        one = grid_search(g, data[i : i + 1], 3, search_options(3))
         for a, b in zip(full, one):
             np.testing.assert_array_equal(a[i], b[0])
 
@@ -85,21 +87,20 @@ def test_compiled_search_batch_equals_loop():
 def test_tuple_plans_each_distinct_subset_once():
     """The farthest-point subsets requested (24 at K = 4 on a 30-ring's default grid,
     some of them coinciding) are all planned, each distinct one exactly once."""
-    from olsbayes.ml.grid import atoms, cached_default_grid
-    from olsbayes.ml.tuples import coarse_size, coarse_subsets, tuple_plans
+    from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.fast.tuples import coarse_size, coarse_subsets
 
     model = ob.Model(ob.Ring(30), 0.01)
     g = atoms(model, cached_default_grid(model))
-    requested = coarse_subsets(g, coarse_size(*g.shape, 4), 24)
-    planned = [tuple(p.subset) for p in tuple_plans(g, 4, 24)]
+    requested = coarse_subsets(g, coarse_size(*g.shape, 4, 5_000), 24)
+    planned = [tuple(p.subset) for p in plans(g, 4, 24)]
     assert len(planned) == len(set(planned))
     assert set(planned) == {tuple(s) for s in requested}
 
 
 def _tuple_case(k: int, dtype):
     """A coarse plan, data and every tuple's own least-squares solve (float64)."""
-    from olsbayes.ml.grid import atoms, cached_default_grid
-    from olsbayes.ml.tuples import tuple_plans
+    from olsbayes.ml.atoms import atoms, cached_default_grid
 
     model = ob.Model(ob.Ring(30), 0.05)
     rng = np.random.default_rng(3)
@@ -107,7 +108,7 @@ def _tuple_case(k: int, dtype):
                      intensities=np.linspace(1.0, 0.3, k))
     data = model.simulate(scene, rng, size=12)
     g = atoms(model, cached_default_grid(model))
-    plan = tuple_plans(g, k, 1, dtype=dtype)[0]
+    plan = plans(g, k, 1, dtype=dtype)[0]
     corr = data @ plan.atoms.T
     a = plan.atoms[plan.combos]  # (C, K, N)
     b = corr[:, plan.combos]  # (T, C, K)
@@ -121,9 +122,8 @@ def test_tuple_scores_equal_least_squares(k):
     tuple's own least-squares solve: RSS drop b' G^-1 b where all intensities
     G^-1 b >= 0, else -inf; and the compiled search (K = 5: the generic loops) picks
     a tuple of the largest score."""
-    from olsbayes.ml import _tuple_kernel as tk
-    from olsbayes.ml.search import _plan_views
-    from olsbayes.ml.tuples import tuple_scores
+    from olsbayes.ml._numba import tuples as tk
+    from olsbayes.ml.fast.search import _plan_views
 
     data, plan, corr, coef, ref = _tuple_case(k, np.float64)
     sc = tuple_scores(plan, corr)
@@ -146,7 +146,6 @@ def test_float32_tuple_scores_within_rounding_bound():
     rounding bound of the block elimination (inputs and every operation rounded,
     eps = 2^-24) of the float64 least-squares score, and feasibility agrees wherever
     every intensity is further from 0 than its own bound."""
-    from olsbayes.ml.tuples import tuple_scores
 
     data, plan, corr, coef, ref = _tuple_case(4, None)
     assert plan.ext.dtype == np.float32
@@ -175,11 +174,10 @@ def test_float32_tuple_scores_within_rounding_bound():
 def test_blocked_tuple_search_equals_per_trial(k):
     """Tuple search over blocks of trials (K = 2..4) == one trial at a time, exactly,
     for the best tuple and for the best tuple of a second mode (outside the best's
-    basins), and both == the numpy reference tuples.tuple_search."""
-    from olsbayes.ml import _tuple_kernel as tk
-    from olsbayes.ml.grid import atoms, cached_default_grid
-    from olsbayes.ml.search import _plan_views
-    from olsbayes.ml.tuples import tuple_plans, tuple_search
+    basins), and both == the numpy reference tuple_search."""
+    from olsbayes.ml._numba import tuples as tk
+    from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.fast.search import _plan_views
 
     model = ob.Model(ob.Ring(30), 0.05)
     rng = np.random.default_rng(8)
@@ -187,7 +185,7 @@ def test_blocked_tuple_search_equals_per_trial(k):
                      intensities=np.linspace(1.0, 0.3, k))
     data = model.simulate(scene, rng, size=2 * tk.TUPLE_BLOCK + 5)
     g = atoms(model, cached_default_grid(model))
-    for plan in tuple_plans(g, k, 3):
+    for plan in plans(g, k, 3):
         views = _plan_views(plan)
         out = np.zeros((data.shape[0], 2, k), np.int64)
         tk.tuple_trials(*views, data, out, 0, 1)
@@ -208,16 +206,16 @@ def test_blocked_tuple_search_equals_per_trial(k):
 def test_search_gram_route_equals_atom_route(monkeypatch):
     """The search's projections through the atoms' Gram matrix (M <= _GRAM_ATOMS) pick
     the same candidates as projecting with the atoms themselves (rounding only)."""
-    from olsbayes.ml import search
-    from olsbayes.ml.grid import atoms, cached_default_grid
+    from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.fast import search
 
     model = ob.Model(ob.Ring(30), 1e-2)
     ang = 0.37 + 2 * np.pi * np.arange(3) / 3 + 0.13 * np.arange(3)
     data = model.simulate(ob.Scene(directions=ang, intensities=[1.0, 0.8, 0.6]), 4, size=200)
     g = atoms(model, cached_default_grid(model))
-    a = search.grid_search(g, data, 3)
+    a = search.grid_search(g, data, 3, search_options(3))
     monkeypatch.setattr(search, "_GRAM_ATOMS", 0)
     monkeypatch.setattr(search, "_VIEWS", {})
-    b = search.grid_search(g, data, 3)
+    b = search.grid_search(g, data, 3, search_options(3))
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_allclose(a[2], b[2], rtol=1e-9)

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 import olsbayes as ob
-
 from olsbayes import (
     Cosine,
     CosinePower,
@@ -267,7 +266,7 @@ def test_changed_copies_and_copies_never_share_a_cache():
     import copy
     import pickle
 
-    from olsbayes.ml.grid import atoms, cached_default_grid
+    from olsbayes.ml.atoms import atoms, cached_default_grid
 
     model = ob.Model(ob.Ring(16), 0.01)
     grid = cached_default_grid(model)

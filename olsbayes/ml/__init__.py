@@ -1,32 +1,31 @@
 """Maximum-likelihood estimation of source directions/positions and intensities (Eq. 2).
 
-:func:`fit_ml` fits K sources to one data vector (N,) or a batch (T, N):
+:func:`fit_ml` fits K sources to one data vector (N,) or a batch (T, N) and returns
+an :class:`MLResult` (frozen): the estimate in canonical order, its
+log-likelihood, convergence flags, the inverse Fisher matrix and the gap to the
+best rival optimum found.  Its methods:
 
-* ``method="fast"`` -- polynomial-time: candidate sources from a grid of atoms
-  (matching pursuit + alternating projection, and for K >= 2 the best K-tuple of
-  a few coarse atom subsets with intensities solved linearly; at K = 4 the
-  tuples of 24 subsets only), then batched
-  bounded Levenberg–Marquardt with the analytic Jacobian and a few deterministic
-  perturbed restarts and kink hops against the false minima of the clipped
-  cosine's kink.
-  Deterministic, vectorised over trials: a batch equals a loop of single fits;
-* ``method="multistart"`` -- the paper's baseline: pseudo-random starts refined
-  by a quasi-Newton method (L-BFGS-B).
+* ``"fast"`` (:mod:`.fast`, settings :class:`FastOptions`) -- polynomial-time:
+  candidate sources from a grid of atoms, then batched bounded
+  Levenberg–Marquardt (:mod:`.lm`) with deterministic restarts and kink moves;
+  a batch equals a loop of single fits;
+* ``"multistart"`` (:mod:`.multistart`, settings :class:`MultistartOptions`) --
+  the paper's baseline: pseudo-random starts refined by L-BFGS-B;
+* ``"exact"`` (:mod:`.exact`) -- the global optimum of a ring with the clipped
+  cosine by enumerating the likelihood's linear cells.
 
-Results are :class:`MLResult` objects (frozen) with the estimate in canonical
-order, its log-likelihood, convergence flags and the inverse Fisher matrix.
-:func:`refine_batch` (bounded LM from given starts, batched) and
-:func:`estimation_errors` (errors after matching estimated to true sources) are
-building blocks for model selection and simulation studies.
+Around them: the readings' units (:mod:`.scaling`), candidate atoms
+(:mod:`.atoms`), rival optima (:mod:`.rivals`) and the compiled twins
+(:mod:`._numba`).  :func:`refine_batch` (bounded LM from given starts, batched)
+and :func:`default_grid` are building blocks for model selection and studies.
 """
 
-from .api import METHODS, fit_ml
-from .batch import refine_batch
-from .exact import ExactResult, fit_exact
-from .grid import default_grid
+from .atoms import default_grid
+from .fast import FastOptions
+from .fit import METHODS, fit_ml
+from .lm import refine_batch
+from .multistart import MultistartOptions
 from .result import MLResult
 
-__all__ = [
-    "fit_ml", "MLResult", "METHODS", "refine_batch", "default_grid",
-    "fit_exact", "ExactResult",
-]
+__all__ = ["fit_ml", "MLResult", "METHODS", "FastOptions", "MultistartOptions",
+           "refine_batch", "default_grid"]

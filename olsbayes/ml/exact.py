@@ -1,4 +1,4 @@
-"""Exact global maximum likelihood on a ring with the clipped cosine (a verifier).
+"""Exact global maximum likelihood on a ring with the clipped cosine, by enumeration.
 
 On a ring the sub-sensor ``n`` at angle ``t_n`` reads ``sum_k I_k max(cos(a_k -
 t_n), 0)``.  The 2N *crossing angles* ``t_n +- pi/2`` (a source on sub-sensor
@@ -49,19 +49,17 @@ Cost.  sum_{a + q <= K} C(M, a) C(M, q) = sum_{k <= K} C(2M, k)
 configurations of a arcs and q pins, M = N crossings on an even ring, 2N on an
 odd one: Ring(30) K = 3 36k, K = 4 524k; Ring(31) K = 3 318k, K = 4 9.7M.  The
 Gram matrices are look-ups in one table of the states' inner products; the scan
-runs compiled (:mod:`._exact_kernel`), with a numpy reference
-(:mod:`._exact_numpy`, vectorised over chunks of configurations) that returns
-the same.  Consecutive configurations share their leading states, so the
-compiled scan refactors and re-substitutes only the rows from the first changed
-state on, and a configuration whose gain is already below the best so far is not
-solved (unless feasible configurations are counted).  Measured on a 30-ring, per
-data vector, alone | in a batch of 20: K = 2 0.19 | 0.02 ms, K = 3 1.1 | 0.21 ms,
-K = 4 15 | 2.6 ms (with the count: 0.28 | 0.09, 2.1 | 1.1, 28 | 14 ms).
+runs compiled (:mod:`olsbayes.ml._numba.exact`); the tests hold it against a
+numpy reference vectorised over chunks of configurations.  Consecutive
+configurations share their leading states, so the compiled scan refactors and
+re-substitutes only the rows from the first changed state on, and a
+configuration whose gain is already below the best so far is not
+solved (unless feasible configurations are counted).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -70,12 +68,12 @@ from ..circular import TWO_PI, wrap_angle
 from ..errors import InputError
 from ..geometry import Ring
 from ..model import Model
-from ..scene import Scene
 from ..sensitivity import is_clipped_cosine
 
-__all__ = ["ExactResult", "fit_exact", "crossing_angles", "MAX_SOURCES", "RANK_RTOL"]
+__all__ = ["ExactSolution", "check_exact", "enumerate_optimum", "crossing_angles",
+           "MAX_SOURCES", "RANK_RTOL"]
 
-#: Largest K accepted (K = 4 on an odd 31-ring: ~9.7M configurations, ~0.4-0.6 s).
+#: Largest K accepted (K = 4 on an odd 31-ring: ~9.7M configurations).
 MAX_SOURCES = 4
 #: Relative LDL^T pivot below which a configuration counts as rank-deficient.
 RANK_RTOL = 1e-10
@@ -89,54 +87,26 @@ _MAX_CANDIDATES = 64
 MERGE_TOL = 1e-9
 
 
-@dataclass(frozen=True, eq=False)
-class ExactResult:
-    """Global ML estimate(s) of a ring with the clipped cosine.
+@dataclass(frozen=True)
+class ExactSolution:
+    """Global optima of a batch of T data vectors (internal record).
 
     Attributes
     ----------
-    params : ndarray, shape (P,) or (T, P)
-        Estimate in the model's flat layout ``[angle, I]`` per source, canonical
-        order; sources the optimum does not need are ``[0, 0]``.
-    log_likelihood : ndarray, shape () or (T,)
+    params : ndarray, shape (T, P)
+        Canonical-order optimum; sources the optimum does not need are ``[0, 0]``.
+    log_likelihood : ndarray, shape (T,)
         Gaussian log-likelihood at ``params`` (``model.log_likelihood``).
     n_configurations : int
         Configurations enumerated (per data vector).
-    n_feasible : ndarray of int, shape () or (T,), or None
-        Full-rank configurations whose LS solution is feasible (None unless
-        counted: ``fit_exact(count_feasible=True)``, the default).
-    n_sources : int
-        Number K of sources fitted.
-    model : Model
-        The model fitted.
+    n_feasible : ndarray of int, shape (T,), or None
+        Full-rank configurations whose LS solution is feasible (counted on request).
     """
 
     params: np.ndarray
     log_likelihood: np.ndarray
     n_configurations: int
     n_feasible: np.ndarray | None
-    n_sources: int
-    model: Model = field(repr=False)
-
-    def __post_init__(self) -> None:
-        for name in ("params", "log_likelihood", "n_feasible"):
-            if getattr(self, name) is None:
-                continue
-            arr = np.array(getattr(self, name))
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
-
-    @property
-    def is_batch(self) -> bool:
-        """True for a batch fit (leading trial axis)."""
-        return self.params.ndim == 2
-
-    @property
-    def scene(self) -> Scene:
-        """The estimated scene of a single fit."""
-        if self.is_batch:
-            raise InputError("scene is defined for a single fit; this result is a batch")
-        return self.model.unpack(self.params)
 
 
 def crossing_angles(ring: Ring) -> np.ndarray:
@@ -192,22 +162,18 @@ def _design(model: Model) -> tuple[np.ndarray, np.ndarray]:
     return c, cols
 
 
-def _check(model: object, data: object, n_sources: object) -> tuple[np.ndarray, int]:
-    """Validated data (T, N) and K; InputError for anything but a ring with the cosine."""
-    from .api import _check as check_ml
-
-    if isinstance(model, Model) and not isinstance(model.array, Ring):
+def check_exact(model: Model, k: int) -> None:
+    """InputError unless the enumeration covers the model: a ring with the clipped
+    cosine and 1 <= K <= :data:`MAX_SOURCES`."""
+    if not isinstance(model.array, Ring):
         raise InputError(
-            "model.array must be a Ring (fit_exact enumerates a ring's horizon "
+            "method='exact' needs a Ring model (the enumeration of a ring's horizon "
             f"cells); got {type(model.array).__name__}")
-    law = getattr(model, "sensitivity", None)
-    if isinstance(model, Model) and not is_clipped_cosine(law):
+    if not is_clipped_cosine(model.sensitivity):
         raise InputError(
-            "model.sensitivity must be the clipped cosine (Cosine, 'cosine'); "
-            f"got {law!r}")
-    arr, k = check_ml(model, data, n_sources, "fast")
-    k = integer("n_sources", k, low=1, high=MAX_SOURCES)
-    return (arr if arr.ndim == 2 else arr[None, :]), k
+            "method='exact' needs the clipped cosine law (Cosine, 'cosine'); got "
+            f"{model.sensitivity!r}")
+    integer("n_sources", k, low=1, high=MAX_SOURCES)
 
 
 def _widths(c: np.ndarray) -> np.ndarray:
@@ -275,9 +241,9 @@ def _group_params(c: np.ndarray, width: np.ndarray, cols: np.ndarray, s: np.ndar
     return out.reshape(len(arcs), 2 * k)
 
 
-def fit_exact(model: Model, data: np.ndarray, n_sources: int, *,
-              count_feasible: bool = True) -> ExactResult:
-    """Global maximum-likelihood fit of a ring with the clipped cosine, by enumeration.
+def enumerate_optimum(model: Model, data: np.ndarray, n_sources: int, *,
+                      count_feasible: bool = False) -> ExactSolution:
+    """Global maximum-likelihood fits of a ring with the clipped cosine, by enumeration.
 
     Exact up to rounding (see the module docstring for the argument): every
     configuration of at most K sources in distinct arcs / on distinct crossings
@@ -286,40 +252,31 @@ def fit_exact(model: Model, data: np.ndarray, n_sources: int, *,
     Parameters
     ----------
     model : Model
-        A :class:`~olsbayes.Ring` model with the clipped cosine law.
-    data : array_like, shape (N,) or (T, N)
-        Readings; a batch shares the data-independent factorisations.
+        A :class:`~olsbayes.Ring` model with the clipped cosine law
+        (:func:`check_exact`).
+    data : ndarray, shape (T, N)
+        Validated readings; the batch shares the data-independent factorisations.
     n_sources : int
-        Number K of sources, 1 <= K <= :data:`MAX_SOURCES` (and 2K <= N).
-        The cost grows like (2M)^K / K! configurations (M crossings): K = 3
-        on a 30-ring 36k, K = 4 524k, K = 4 on an odd 31-ring 9.7M.
+        Number K of sources, 1 <= K <= :data:`MAX_SOURCES` (and 2K <= N).  The cost
+        grows like (2M)^K / K! configurations (M crossings): K = 3 on a 30-ring
+        36k, K = 4 524k, K = 4 on an odd 31-ring 9.7M.
     count_feasible : bool
-        Count the feasible configurations (``n_feasible``).  False skips the
-        least-squares solution of every configuration that cannot be the
-        optimum (its gain is below the best so far): the same optimum, 1.3-5x
-        faster (see the module docstring).
+        Count the feasible configurations (``n_feasible``).  Without the count, the
+        least-squares solution of every configuration that cannot be the optimum
+        (its gain is below the best so far) is skipped: the same optimum, faster.
 
     Returns
     -------
-    ExactResult
-        Canonical-order global optimum and its log-likelihood.
-
-    Raises
-    ------
-    InputError
-        A model other than a ring with the clipped cosine, bad data or n_sources.
+    ExactSolution
     """
-    s, k = _check(model, data, n_sources)
-    from . import _exact_kernel  # numba is imported on first use, not with the package
+    from ._numba import exact  # numba is imported on first use, not with the package
 
+    s = np.asarray(data, dtype=float)
     c, cols, gram, units, width = _scan_design(model)
     margin = RERANK_RTOL * np.einsum("tn,tn->t", s, s)
-    _, cstate, count, n_feas, n_conf = _exact_kernel.scan(
-        gram, s @ cols, units, k, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES,
+    _, cstate, count, n_feas, n_conf = exact.scan(
+        gram, s @ cols, units, n_sources, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES,
         count_feasible)
     x, ll = _best_params(model, c, width, cols, s, cstate, count)
-    batch = np.ndim(data) == 2
-    sel = (lambda v: v) if batch else (lambda v: v[0])
-    return ExactResult(params=sel(x), log_likelihood=sel(ll), n_configurations=int(n_conf),
-                       n_feasible=None if n_feas is None else sel(n_feas), n_sources=k,
-                       model=model)
+    return ExactSolution(params=x, log_likelihood=ll, n_configurations=int(n_conf),
+                         n_feasible=n_feas)

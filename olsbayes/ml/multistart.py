@@ -10,14 +10,40 @@ which grows exponentially with K.  Kept as the reference for the benchmark.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.optimize import minimize
 
+from .._validation import integer
 from ..bounds import kink_sources
 from ..model import Model
-from .batch import LMOutcome, _z_floor
+from .lm import z_floor
+from .outcome import FitOutcome
 
-__all__ = ["fit_multistart", "random_starts"]
+__all__ = ["MultistartOptions", "fit_multistart", "random_starts"]
+
+
+@dataclass(frozen=True)
+class MultistartOptions:
+    """Options of ``fit_ml(method="multistart")``, the paper's baseline.
+
+    Attributes
+    ----------
+    n_starts : int
+        Pseudo-random starts per data vector (1..100,000).
+    max_iter : int
+        Iteration cap of each L-BFGS-B run (>= 1).
+    """
+
+    n_starts: int = 20
+    max_iter: int = 500
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "n_starts", integer("n_starts", self.n_starts, low=1,
+                                                     high=100_000))
+        object.__setattr__(self, "max_iter", integer("max_iter", self.max_iter, low=1,
+                                                     high=100_000))
 
 
 def random_starts(
@@ -49,7 +75,7 @@ def _bounds(model: Model, k: int) -> list[tuple[float | None, float | None]]:
     elif model.kind == "lonlat":
         per = [(None, None), (-np.pi / 2, np.pi / 2), (0.0, None)]
     else:
-        per = [(None, None), (None, None), (_z_floor(model), None), (0.0, None)]
+        per = [(None, None), (None, None), (z_floor(model), None), (0.0, None)]
     return per * k
 
 
@@ -102,21 +128,15 @@ def _converged(model: Model, res) -> bool:
     return small or bool(np.any(kink_sources(model, res.x, atol=1e-5)))
 
 
-def fit_multistart(
-    model: Model,
-    data: np.ndarray,
-    n_sources: int,
-    grid: np.ndarray,
-    rng: np.random.Generator,
-    *,
-    n_starts: int = 20,
-    max_iter: int = 500,
-) -> LMOutcome:
-    """Multi-start L-BFGS-B fits of a batch ``data`` (T, N), one trial at a time.
+def fit_multistart(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
+                   rng: np.random.Generator, options: MultistartOptions) -> FitOutcome:
+    """Multi-start L-BFGS-B fits of a batch ``data`` (T, N), one data vector at a time.
 
-    Starts for trial i are drawn from ``rng`` in trial order, so the result of a
+    Starts for data vector i are drawn from ``rng`` in order, so the result of a
     batch equals a loop of single fits that share one Generator sequentially.
+    ``grid`` (M, d): the box of the random positions on a plate.
     """
+    n_starts, max_iter = options.n_starts, options.max_iter
     t, p = data.shape[0], model.n_params(n_sources)
     x, chi2 = np.empty((t, p)), np.empty(t)
     conv, nev = np.empty(t, bool), np.empty(t, np.int64)
@@ -125,5 +145,5 @@ def fit_multistart(
         starts = random_starts(model, data[i], n_sources, n_starts, grid, rng)
         x[i], chi2[i], conv[i], nev[i], alt_x[i], alt_chi2[i] = _fit_one(
             model, data[i], n_sources, starts, max_iter)
-    return LMOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev,
-                     alternatives=(alt_x, alt_chi2))
+    return FitOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev,
+                      alternatives=(alt_x, alt_chi2))

@@ -47,7 +47,7 @@ class MLResult:
         ``cov`` understates the uncertainty.  inf: no distinct optimum reached
         (not a proof that none exists); NaN: not assessed (``"exact"``, K > 6).
     method : str
-        ``"fast"`` or ``"multistart"``.
+        ``"fast"``, ``"multistart"`` or ``"exact"``.
     n_sources : int
         Number K of sources fitted.
     model : Model

@@ -4,11 +4,8 @@ The likelihood is covariant under a change of the readings' unit (data, sigma
 and intensities scaled by one factor: the same angles, log-likelihood shifted by
 N log of the factor), but the optimisers are not: Levenberg–Marquardt's initial
 damping and eigenvalue floor mix angles (rad) with intensities (data units), and
-L-BFGS-B's gradient tolerance is absolute.  Measured on a 30-ring, Fig. 3-like
-scenes (sigma / intensity = 1e-2) fitted in units 1e-12 and 1e12 times the unit
-scale: fast fits of K = 1, 2, 4 ended up to 27 and 45 below the optimum in
-log-likelihood, multistart fits by up to 1e4 (at 1e-9 and 1e9 already); the
-exact method was unaffected.  :func:`olsbayes.ml.fit_ml` therefore divides each
+L-BFGS-B's gradient tolerance is absolute, so fits of readings many orders of
+magnitude from 1 stop short of the optimum.  :func:`olsbayes.ml.fit_ml` therefore divides each
 data vector whose largest reading lies outside :data:`BAND` by the power of two
 that brings it to 1 -- exact in floating point -- and scales the intensities and
 residual sums back.  Data inside the band (readings of order 1, where the
@@ -22,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import Model
-from .batch import LMOutcome
+from .outcome import FitOutcome
 
 __all__ = ["BAND", "reading_scales", "rescale", "scaled_model"]
 
@@ -47,7 +44,7 @@ def scaled_model(model: Model, scale: float) -> Model:
     return model.with_sigma(model.sigma / scale)
 
 
-def rescale(model: Model, out: LMOutcome, scale: np.ndarray) -> LMOutcome:
+def rescale(model: Model, out: FitOutcome, scale: np.ndarray) -> FitOutcome:
     """An outcome of data divided by ``scale`` (T,) in the original units: intensities
     times the scale, residual sums of squares times its square."""
     d1 = model.n_loc + 1
@@ -60,5 +57,5 @@ def rescale(model: Model, out: LMOutcome, scale: np.ndarray) -> LMOutcome:
     alt = out.alternatives
     if alt is not None:
         alt = (up(alt[0]), alt[1] * (scale**2)[:, None])
-    return LMOutcome(up(out.x), out.chi2 * scale**2, out.converged, out.n_evaluations,
+    return FitOutcome(up(out.x), out.chi2 * scale**2, out.converged, out.n_evaluations,
                      out.stalled, alt)

@@ -39,7 +39,7 @@ def _refine(model: Model, data: np.ndarray, starts: np.ndarray) -> tuple[np.ndar
 
 def _upward_starts(model: Model, data: np.ndarray, base: np.ndarray) -> np.ndarray:
     from ..ml import default_grid
-    from ..ml.grid import atoms
+    from ..ml.atoms import atoms
 
     grid = default_grid(model)
     g = atoms(model, grid)  # (M, N)

@@ -120,13 +120,14 @@ def _warm_up(model: Model, k: int, method: str, num: int, settings: dict) -> Non
 
 def _one_fit(model: Model, data: np.ndarray, k: int, method: str, num: int, settings: dict,
              rng) -> tuple:
-    from ..ml import fit_ml
+    from ..ml import MultistartOptions, fit_ml
 
     if method in ("fast", "exact"):
         r = fit_ml(model, data, k, method, warn=False)
         return r.params, bool(r.converged), int(r.n_evaluations)
     if method == "multistart":
-        r = fit_ml(model, data, k, "multistart", rng=rng, n_starts=num, warn=False)
+        r = fit_ml(model, data, k, "multistart", options=MultistartOptions(n_starts=num),
+                   rng=rng, warn=False)
         return r.params, bool(r.converged), int(r.n_evaluations)
     if method == "posterior":
         return _posterior(model, data, k, num, settings, rng)

@@ -19,9 +19,8 @@ on the prefix atoms and ``1 / schur``, ``schur = g_dd - g_p,d . w``::
 
 -- block elimination of the tuple's normal equations: 2 K multiply-adds per tuple
 (K - 1 for r, 2 for I_d and the score, K - 1 for the signs of I_p) instead of
-K (K + 1) with its K x K inverse (K = 4: 8 instead of 20).
-Cost O(C(M_c, K) K) per data vector.  K = 4 scores in float32
-(:data:`SINGLE_PRECISION`).
+K (K + 1) with its K x K inverse.  Cost O(C(M_c, K) K) per data vector.  The
+scan itself is compiled (:mod:`olsbayes.ml._numba.tuples`); this module plans it.
 """
 
 from __future__ import annotations
@@ -35,26 +34,12 @@ from math import comb
 
 import numpy as np
 
-__all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "tuple_scores", "tuple_search",
-           "TuplePlan"]
+from ..atoms import NEIGHBOUR
 
-#: Normalised-atom correlation above which two atoms count as one basin.
-NEIGHBOUR = 0.95
-
-#: Default cap on the number of K-tuples enumerated per data vector.
-TUPLE_BUDGET = 5_000
-
-#: Numbers of sources whose plans score tuples in float32 by default (``tuple_plans``
-#: dtype): the unrolled K = 4 search then runs twice the lanes per vector instruction,
-#: ~1.6x faster (0.15 -> 0.09 ms per data vector on a 30-ring, 21 subsets).  The
-#: scores only rank coarse candidates for the float64 LM refinement: 8,000 fits of
-#: random K = 4 scenes (sigma 0.1, 1e-2, 1e-3, 1e-4) reached the same optima as with
-#: float64 scores.  K >= 5 runs the generic loops, which gain nothing from it.
-SINGLE_PRECISION = (4,)
-_BLOCK = 32_768  # elements of each (t, C) work array per block: the ~2K + 3 arrays stay in cache
+__all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "TuplePlan"]
 
 
-def coarse_size(m: int, n: int, k: int, budget: int = TUPLE_BUDGET) -> int:
+def coarse_size(m: int, n: int, k: int, budget: int) -> int:
     """Largest coarse size <= min(M, 2 N) with C(size, K) <= budget (0 if < K + 1)."""
     size = min(m, 2 * n)
     while size > k and comb(size, k) > budget:
@@ -70,10 +55,8 @@ def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1) -> list[np.ndarray
     The subsets differ in placement but are not regular shifted grids: on a
     30-ring's 128-atom grid with 20 atoms per subset their gaps range from about
     11 to 25 deg, and 3 of 24 seeds give a subset another seed gave
-    (:func:`tuple_plans` plans each once).  Regular grids would do worse: 24
-    shifted 20-atom grids left 1.75 % of 800 fits of random K = 4 scenes
-    (sigma = 0.01) short of the exact optimum, these subsets none.
-    Atoms with zero response (sources no sub-sensor sees) are skipped.
+    (:func:`tuple_plans` plans each once); regular shifted grids reached the
+    global optimum less often.  Atoms with zero response (sources no sub-sensor sees) are skipped.
     """
     norm = np.linalg.norm(g, axis=1)
     live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
@@ -156,12 +139,11 @@ def _digest(g: np.ndarray) -> str:
     return digest
 
 
-def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET,
-                dtype: type | None = None) -> list:
+def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type) -> list:
     """Tuple-search plans for ``n_sets`` coarse subsets of the atoms g (cached).
 
-    ``dtype``: the float type the tuples are scored in; None: float32 for K in
-    :data:`SINGLE_PRECISION`, else float64.
+    ``dtype``: the float type the tuples are scored in (float64 anyway where the
+    tuple numbers exceed float32's integers).
 
     Farthest-point subsets seeded at different atoms can coincide (24 subsets of
     a 128-atom ring grid at K = 4: 21 distinct); a repeated subset would only
@@ -174,7 +156,7 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET,
     size = coarse_size(g.shape[0], g.shape[1], k, budget)
     if size == 0 or n_sets == 0:
         return []
-    dtype = np.dtype(dtype or (np.float32 if k in SINGLE_PRECISION else np.float64))
+    dtype = np.dtype(dtype)
     key = (_digest(g), g.shape, k, n_sets, size, dtype.str)
     if key in _CACHE:
         _CACHE.move_to_end(key)
@@ -189,77 +171,3 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int = TUPLE_BUDGET,
     while len(_CACHE) > _CACHE_SIZE:
         _CACHE.popitem(last=False)
     return plans
-
-
-def tuple_scores(plan: TuplePlan, corr: np.ndarray) -> np.ndarray:
-    """RSS drop of every tuple, -inf where an intensity is negative: shape (t, C).
-
-    ``corr`` (t, Mc): data . coarse atoms, rounded to the plan's float type.  The
-    block elimination of the module docstring, in that type, with the compiled
-    kernel's order of operations (same rounding).
-    """
-    corr = np.asarray(corr).astype(plan.ext.dtype, copy=False)
-    km = plan.prefixes.shape[0]
-    owner = np.repeat(np.arange(plan.prefixes.shape[1]), np.diff(plan.ext_ptr))
-    bp = [corr[:, plan.prefixes[i]] for i in range(km)]  # K - 1 arrays (t, R)
-    f = []
-    for i in range(km):
-        fi = plan.prefix_inv[i, 0] * bp[0]
-        for j in range(1, km):
-            fi = fi + plan.prefix_inv[i, j] * bp[j]
-        f.append(fi)
-    sp = bp[0] * f[0]
-    for i in range(1, km):
-        sp = sp + bp[i] * f[i]
-    w, inv_schur = plan.ext[:km], plan.ext[km]  # (ext[km + 1]: the tuple numbers)
-    acc = w[0] * bp[0][:, owner]
-    for i in range(1, km):
-        acc = acc + w[i] * bp[i][:, owner]
-    r = corr[:, plan.columns[km]] - acc
-    cd = r * inv_schur
-    score = sp[:, owner] + r * cd
-    feasible = cd >= 0.0
-    for i in range(km):
-        feasible &= f[i][:, owner] - w[i] * cd >= 0.0
-    return np.where(feasible, score, -np.inf)
-
-
-def tuple_search(
-    plan: TuplePlan, data: np.ndarray, distinct: bool = False
-) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """Best feasible K-tuple of the plan's coarse atoms for every data vector (numpy).
-
-    Parameters
-    ----------
-    plan : TuplePlan
-    data : ndarray, shape (T, N)
-    distinct : bool
-        Also return the best feasible tuple none of whose atoms is in the basin
-        (``plan.near``) of an atom of the best one: a second, distinct mode (the
-        best tuple again where there is none).
-
-    Returns
-    -------
-    ndarray of int, shape (T, K)
-        Fine-grid indices of the tuple with the largest drop in residual sum of
-        squares among tuples whose least-squares intensities are all >= 0; with
-        ``distinct``, a pair (best, second mode).
-    """
-    n_c = plan.combos.shape[0]
-    corr = data @ plan.atoms.T  # (T, Mc)
-    step = max(1, _BLOCK // max(n_c, 1))
-    best = np.empty(data.shape[0], dtype=np.int64)
-    second = best.copy()
-    for start in range(0, data.shape[0], step):
-        sc = tuple_scores(plan, corr[start : start + step])
-        top = np.argmax(sc, axis=1)
-        best[start : start + step] = top
-        if distinct:
-            blocked = plan.near[plan.combos[top]].any(axis=1)  # (t, Mc)
-            sc[blocked[:, plan.combos].any(axis=2)] = -np.inf  # a blocked atom
-            alt = np.argmax(sc, axis=1)
-            none = ~np.isfinite(sc[np.arange(sc.shape[0]), alt])
-            second[start : start + step] = np.where(none, top, alt)
-    if distinct:
-        return plan.subset[plan.combos[best]], plan.subset[plan.combos[second]]
-    return plan.subset[plan.combos[best]]

@@ -1,4 +1,4 @@
-"""Batched, bounded Levenberg–Marquardt refinement of Eq. 2 over many trials.
+"""Bounded Levenberg–Marquardt refinement of Eq. 2 for a batch of starts.
 
 All trials advance in lock-step with numpy broadcasting over a leading trial
 axis: one call of ``model.response`` / ``model.jacobian`` on a (T, P) array per
@@ -10,10 +10,11 @@ Bounds: intensities >= 0 (active set: an intensity at 0 whose gradient points
 outwards is frozen for that step), latitudes in [-pi/2, pi/2], plate z > 0.
 
 :func:`refine_batch` runs the same algorithm compiled, one trial at a time
-(:mod:`olsbayes.ml._kernel`), for the models the kernel covers (ring, sphere
-and plate with the clipped cosine or cos^p laws) -- for a few candidates of a
+(:mod:`olsbayes.ml._numba.lm`), for the models the kernel covers (ring, sphere
+and plate with the clipped cosine or cos^p laws): for a few candidates of a
 small model numpy's per-call overhead dominates the lock-step version.  The
-numpy version :func:`refine_batch_numpy` is the reference and serves other laws.
+numpy version :func:`refine_batch_numpy` is the reference and serves the other
+laws (:class:`~olsbayes.CustomSensitivity`).
 """
 
 from __future__ import annotations
@@ -24,34 +25,21 @@ import numpy as np
 
 from ..errors import InputError
 from ..model import Model
+from .outcome import FitOutcome
 
-__all__ = ["LMOutcome", "project", "refine_batch", "refine_batch_numpy"]
+__all__ = ["Dedupe", "project", "refine_batch", "refine_batch_numpy", "z_floor", "LAMBDA_MAX"]
 
 #: Damping above which no descent step is representable: the point is a local
 #: minimum to working precision (e.g. sitting on the kink of the clipped cosine).
-_LAMBDA_MAX = 1e14
+LAMBDA_MAX = 1e14
 
 #: Jacobian entries (trials x P x N) per block of an LM iteration on a large
 #: batch (see :func:`_propose`): ~1 MiB, so the intermediates stay in cache.
-#: Measured on a 30-ring, K = 2, 16000 candidates: 158 ms unblocked, 109-112 ms
-#: for blocks of 512-2048 trials.
 _BLOCK_TERMS = 131072
 
 
-@dataclass(frozen=True)
-class LMOutcome:
-    """Result of :func:`refine_batch` (internal)."""
-
-    x: np.ndarray  # (T, P)
-    chi2: np.ndarray  # (T,) sum of squared residuals (not divided by sigma^2)
-    converged: np.ndarray  # (T,) bool
-    n_evaluations: np.ndarray  # (T,) int
-    stalled: np.ndarray | None = None  # (T,) bool, stopped with no descent step
-    # other optima the method reached per trial: x (T, C, P), chi2 (T, C) (inf: none)
-    alternatives: tuple[np.ndarray, np.ndarray] | None = None
-
-
-def _z_floor(model: Model) -> float:
+def z_floor(model: Model) -> float:
+    """Smallest source height z above a plate (1e-6 of its extent): the LM's bound."""
     pos = model.array.positions
     scale = float(np.ptp(pos[:, :2])) if pos is not None else 1.0
     return 1e-6 * max(scale, 1e-12)
@@ -68,7 +56,7 @@ def _project_inplace(model: Model, x: np.ndarray) -> np.ndarray:
     if model.kind == "lonlat":
         x[..., 1::d1] = np.clip(x[..., 1::d1], -np.pi / 2, np.pi / 2)
     elif model.kind == "position":
-        x[..., 2::d1] = np.maximum(x[..., 2::d1], _z_floor(model))
+        x[..., 2::d1] = np.maximum(x[..., 2::d1], z_floor(model))
     return x
 
 
@@ -144,6 +132,36 @@ def _check_shapes(model: Model, data: np.ndarray, x0: np.ndarray) -> None:
         )
 
 
+@dataclass(frozen=True)
+class Dedupe:
+    """Runs that reach an optimum already known for their data stop there.
+
+    The rows of a batch come in groups of ``group`` consecutive runs on the same
+    data vector (the starts of one fit).  A run stops, converged, as soon as an
+    accepted iterate comes within ``tol`` (max norm, rad and intensity units) of
+    its group's row of ``base`` (unless NaN) or of the optimum of an earlier
+    converged, unstalled run of the group.  With ``cells`` (rings with the clipped
+    cosine only) it also stops on entering the linear cell of such an optimum,
+    where chi^2 is convex in the phasors, and reports that optimum.
+
+    Attributes
+    ----------
+    group : int
+        Runs per data vector; the batch size T must be a multiple.
+    base : ndarray, shape (T / group, P), or None
+        A known optimum per group (NaN rows: none).
+    tol : float
+        Distance (> 0) within which an iterate counts as the known optimum.
+    cells : bool
+        Also stop on entering a known optimum's linear cell.
+    """
+
+    group: int
+    base: np.ndarray | None
+    tol: float
+    cells: bool = False
+
+
 def refine_batch(
     model: Model,
     data: np.ndarray,
@@ -153,32 +171,39 @@ def refine_batch(
     ftol: float = 1e-10,
     frozen: np.ndarray | None = None,
     kinks: bool = False,
-    group: int = 1,
-    known: np.ndarray | None = None,
-    dedupe_tol: float = 0.0,
-) -> LMOutcome:
-    """Bounded Levenberg–Marquardt from ``x0`` for every trial.
+    dedupe: Dedupe | None = None,
+) -> FitOutcome:
+    """Bounded Levenberg–Marquardt from ``x0`` for every row of a batch.
 
-    Compiled (:func:`olsbayes.ml._kernel.lm_batch`) when the kernel covers the
-    model, else :func:`refine_batch_numpy`; both run the same algorithm and
-    take and return the same (see :func:`refine_batch_numpy`).  ``kinks``
-    (compiled path, ring with the clipped cosine): rejected steps are cut back
-    to the first sub-sensor horizon they cross, and a source stuck on one has
-    its angle held (see :func:`olsbayes.ml._kernel._lm_trial`).  ``group``,
-    ``known`` (T / group, P; NaN rows: none), ``dedupe_tol`` > 0 (compiled
-    path): a run stops where it comes within dedupe_tol of the known optimum of
-    its group of ``group`` consecutive rows or of an earlier converged run of
-    the group (see :func:`olsbayes.ml._kernel._lm_all`).
+    Compiled (:func:`olsbayes.ml._numba.lm.lm_batch`) when the kernel covers the
+    model, else :func:`refine_batch_numpy`; both run the same algorithm (see
+    :func:`refine_batch_numpy` for the arguments and the result).
+
+    Parameters
+    ----------
+    kinks : bool
+        Rings with the clipped cosine: a rejected step that carries a source across
+        a sub-sensor's horizon is cut back to the first crossing, and a source stuck
+        on a horizon has its angle held (:func:`olsbayes.ml._numba.lm._lm_trial`).
+        Other models have no such horizons in their derivative (their laws are
+        smooth, or custom), so the option does not apply to them.
+    dedupe : Dedupe, optional
+        Stop runs at optima already known for their data (see :class:`Dedupe`).
     """
-    from . import _kernel  # numba is imported on first use, not with the package
+    from ._numba import lm  # numba is imported on first use, not with the package
 
     _check_shapes(model, data, x0)
-    if not _kernel.supports(model):
-        return refine_batch_numpy(model, data, x0, max_iter=max_iter, ftol=ftol, frozen=frozen)
-    x, chi2, conv, nev, stalled = _kernel.lm_batch(
-        model, data, np.asarray(x0, dtype=float), max_iter, ftol, frozen, _z_floor(model),
-        kinks, group, known, dedupe_tol)
-    return LMOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev, stalled=stalled)
+    if dedupe is not None and (dedupe.group < 1 or data.shape[0] % dedupe.group
+                               or not dedupe.tol > 0):
+        raise InputError(f"dedupe: group must divide the batch of {data.shape[0]} rows and "
+                         f"tol be > 0; got group {dedupe.group}, tol {dedupe.tol}")
+    if not lm.supports(model):
+        return refine_batch_numpy(model, data, x0, max_iter=max_iter, ftol=ftol, frozen=frozen,
+                                  dedupe=dedupe)
+    x, chi2, conv, nev, stalled = lm.lm_batch(
+        model, data, np.asarray(x0, dtype=float), max_iter, ftol, frozen, z_floor(model),
+        kinks, dedupe)
+    return FitOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev, stalled=stalled)
 
 
 def refine_batch_numpy(
@@ -189,8 +214,9 @@ def refine_batch_numpy(
     max_iter: int = 300,
     ftol: float = 1e-10,
     frozen: np.ndarray | None = None,
-) -> LMOutcome:
-    """Bounded Levenberg–Marquardt from ``x0`` for every trial at once (numpy).
+    dedupe: Dedupe | None = None,
+) -> FitOutcome:
+    """Bounded Levenberg–Marquardt from ``x0`` for every row (numpy, lock-step).
 
     Parameters
     ----------
@@ -199,31 +225,77 @@ def refine_batch_numpy(
     x0 : ndarray, shape (T, P)
         Starting points (projected onto the feasible set first).
     max_iter : int
-        Maximum number of LM iterations per trial.
+        Maximum number of LM iterations per run.
     ftol : float
         Stop when an accepted step lowers chi^2 by less than ``ftol * chi^2``
         (plus a floor of 1e-30) or the predicted decrease is below it.
     frozen : ndarray of bool, shape (T, P), optional
         Parameters held at their starting values (e.g. a source pinned on a kink).
+    dedupe : Dedupe, optional
+        Stop runs at optima already known for their data: the runs of each group
+        go one start at a time (all groups in lock-step), so each sees the optima
+        of its group's earlier runs, as the compiled kernel's sequential runs do.
+        ``dedupe.cells`` concerns rings with the clipped cosine, which always run
+        compiled.
 
     Returns
     -------
-    LMOutcome
-        ``converged`` is False only for trials that hit ``max_iter``; ``stalled``
-        marks trials that stopped because no damped step decreased chi^2 (a
+    FitOutcome
+        ``converged`` is False only for runs that hit ``max_iter``; ``stalled``
+        marks runs that stopped because no damped step decreased chi^2 (a
         minimum on a kink of the sensitivity law, or working precision).
     """
+    if dedupe is None:
+        return _lm_numpy(model, data, x0, max_iter, ftol, frozen, None)
+    t, p = np.shape(x0)
+    g = dedupe.group
+    n_g = t // g
+    known = np.zeros((n_g, g + 1, p))
+    count = np.zeros(n_g, dtype=np.int64)
+    if dedupe.base is not None:
+        base = np.asarray(dedupe.base, dtype=float)
+        count[:] = ~np.isnan(base[:, 0])
+        known[:, 0] = np.where(count[:, None] > 0, base, 0.0)
+    parts = []
+    for c in range(g):
+        rows = np.arange(n_g) * g + c
+        fz = None if frozen is None else np.asarray(frozen)[rows]
+        out = _lm_numpy(model, data[rows], np.asarray(x0)[rows], max_iter, ftol, fz,
+                        (known, count, dedupe.tol))
+        seen = _within(out.x, known, count, 0.0)
+        add = np.flatnonzero(out.converged & ~out.stalled & ~seen)
+        known[add, count[add]] = out.x[add]
+        count[add] += 1
+        parts.append(out)
+    order = np.argsort(np.concatenate([np.arange(n_g) * g + c for c in range(g)]))
+    return FitOutcome(*(np.concatenate([getattr(o, f) for o in parts])[order]
+                        for f in ("x", "chi2", "converged", "n_evaluations", "stalled")))
+
+
+def _within(x: np.ndarray, known: np.ndarray, count: np.ndarray, tol: float) -> np.ndarray:
+    """Rows of x (n, P) within tol (max norm) of one of the first count[i] rows of
+    known[i] (n, J, P): bool (n,)."""
+    valid = np.arange(known.shape[1]) < count[:, None]
+    close = np.all(np.abs(x[:, None, :] - known) <= tol, axis=-1)
+    return np.any(valid & close, axis=-1)
+
+
+def _lm_numpy(model: Model, data: np.ndarray, x0: np.ndarray, max_iter: int, ftol: float,
+              frozen: np.ndarray | None, stop: tuple | None) -> FitOutcome:
+    """Lock-step LM of :func:`refine_batch_numpy`; ``stop``: (known (T, J, P), count (T,),
+    tol) -- a run whose accepted iterate is within tol of a known row stops there."""
     x = project(model, x0)
     t = x.shape[0]
     chi2 = np.zeros(t)
     nev = np.full(t, 2 * max_iter, dtype=np.int64)
     done = np.zeros(t, bool)
     stalled = np.zeros(t, bool)
-    # Working set of the active trials (rows ``rows`` of the outputs), compacted
-    # only when some trials finish: no gather/scatter in the other iterations.
+    # Working set of the active runs (rows ``rows`` of the outputs), compacted
+    # only when some runs finish: no gather/scatter in the other iterations.
     rows = np.arange(t)
     xa, da, la = x.copy(), data, np.full(t, 1e-3)
     fz = frozen
+    ka, ca = (None, None) if stop is None else stop[:2]
     for it in range(max_iter):
         if rows.size == 0:
             break
@@ -233,8 +305,9 @@ def refine_batch_numpy(
         small = (acc & (chi2_old - chi2_new <= tiny)) | (pred <= tiny)
         xa = np.where(acc[:, None], x_new, xa)
         la = np.where(acc, np.maximum(la / 5.0, 1e-12), la * 8.0)
-        stall = (la > _LAMBDA_MAX) & ~small
-        fin = small | stall
+        near = np.zeros_like(acc) if stop is None else acc & _within(xa, ka, ca, stop[2])
+        stall = (la > LAMBDA_MAX) & ~small & ~near
+        fin = small | stall | near
         if fin.any():
             out = rows[fin]
             x[out] = xa[fin]
@@ -245,7 +318,9 @@ def refine_batch_numpy(
             keep = ~fin
             rows, xa, da, la = rows[keep], xa[keep], da[keep], la[keep]
             fz = None if fz is None else fz[keep]
+            if stop is not None:
+                ka, ca = ka[keep], ca[keep]
     if rows.size:  # hit max_iter
         x[rows] = xa
         chi2[rows] = _chi2(model, xa, da)
-    return LMOutcome(x=x, chi2=chi2, converged=done, n_evaluations=nev, stalled=stalled)
+    return FitOutcome(x=x, chi2=chi2, converged=done, n_evaluations=nev, stalled=stalled)

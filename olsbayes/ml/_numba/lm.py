@@ -1,6 +1,6 @@
-"""Compiled (numba) bounded Levenberg–Marquardt: the fast path of :func:`refine_batch`.
+"""Compiled (numba) bounded Levenberg–Marquardt: twin of :mod:`olsbayes.ml.lm`.
 
-The numpy :func:`~olsbayes.ml.batch.refine_batch_numpy` advances all trials in
+The numpy :func:`~olsbayes.ml.lm.refine_batch_numpy` advances all trials in
 lock-step, and for the small problems of ML fitting (P <= ~16 parameters, N ~
 30 sub-sensors, ~10 candidates) its cost is numpy's per-call overhead, not
 arithmetic.  This module runs the *same* algorithm one trial at a time in
@@ -13,14 +13,14 @@ of LAPACK's).
 The forward model and its analytic Jacobian are evaluated in-kernel for the
 three source kinds of :class:`~olsbayes.Model` and the laws
 :class:`~olsbayes.sensitivity.Cosine` and
-:class:`~olsbayes.sensitivity.CosinePower` (:mod:`._model_kernel`); trig-free
+:class:`~olsbayes.sensitivity.CosinePower` (:mod:`.model`); trig-free
 per sensor-source pair (one cos/sin per source and iteration).  Other laws take
 the numpy path.
 
-Options (compiled only, used by the fast fit): ``kinks`` cuts rejected steps
-at the sub-sensor horizons of a ring with the clipped cosine (:func:`_lm_trial`);
-runs of a group stop at optima found before (``tol``), and on such a ring also
-on entering the linear cell of one (:data:`CELL_STOP`, :func:`_known_cell`).
+Options used by the fast fit: ``kinks`` cuts rejected steps at the sub-sensor
+horizons of a ring with the clipped cosine (:func:`_lm_trial`); runs of a group
+stop at optima found before (:class:`~olsbayes.ml.lm.Dedupe`), and on such a ring
+also on entering the linear cell of one (:func:`_known_cell`).
 
 Trials are independent and run serially (deterministic; a batch equals a loop
 of single calls bit for bit).  Compiled once per machine (``cache=True``).
@@ -33,23 +33,16 @@ import math
 import numba
 import numpy as np
 
-from ..model import Model
-from ..sensitivity import CosinePower, is_clipped_cosine
-from ._linalg_kernel import _solve_spd
-from ._model_kernel import _LAW_COSINE, _LAW_POWER, _residual
-from ._step_kernel import _step4, _step6, _step8
+from ...model import Model
+from ...sensitivity import CosinePower, is_clipped_cosine
+from ..lm import LAMBDA_MAX
+from .linalg import _solve_spd
+from .model import _LAW_COSINE, _LAW_POWER, _residual
 
 __all__ = ["KINDS", "law_code", "lm_batch", "supports"]
 
 #: Source kinds covered, in the order of their integer codes.
 KINDS = ("angle", "lonlat", "position")
-
-#: Runs that stop at known optima (tol > 0, ``kinks``) also stop on entering the linear
-#: cell of one (:func:`_known_cell`).
-CELL_STOP = True
-
-#: Damping above which no descent step is representable (as in batch.py).
-LAMBDA_MAX = 1e14
 
 
 def law_code(model: Model) -> tuple[int, float] | None:
@@ -250,15 +243,7 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
     chi2_old = _residual(kind, law, p, nrm, pos, x, s, jt, r, True)
     _normal_eq(jt, r, a, g)
     for it in range(max_iter):
-        pred, ok = 0.0, False  # unrolled for small P (same numbers), else generic
-        if x.size == 6:
-            pred, ok = _step6(a, g, x, fk, lam, d1, fx, step)
-        elif x.size == 8:
-            pred, ok = _step8(a, g, x, fk, lam, d1, fx, step)
-        elif x.size == 4:
-            pred, ok = _step4(a, g, x, fk, lam, d1, fx, step)
-        if not ok:
-            pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step)
+        pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step)
         for i in range(x.size):
             xn[i] = x[i] + step[i]
         _project(kind, zfl, xn)
@@ -312,7 +297,7 @@ def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol, kinks,
     """
     t, np_ = x.shape
     n = (data.shape[1] + 15) // 16 * 16  # zero-padded: the sums over sensors in
-    # _normal_eq then have no scalar remainder loop (N = 30: ~30 % faster)
+    # _normal_eq then have no scalar remainder loop
     w = (np.zeros((np_, n)), np.zeros(n), np.zeros((np_, n)), np.zeros(n),
          np.empty((np_, np_)), np.empty((np_, np_)), np.empty(np_), np.empty(np_),
          np.empty(np_), np.empty(np_), np.empty(np_, np.bool_), np.empty(np_, np.bool_))
@@ -341,15 +326,13 @@ def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol, kinks,
 
 def lm_batch(
     model: Model, data: np.ndarray, x0: np.ndarray, max_iter: int, ftol: float,
-    frozen: np.ndarray | None, z_floor: float, kinks: bool = False, group: int = 1,
-    base: np.ndarray | None = None, tol: float = 0.0,
+    frozen: np.ndarray | None, z_floor: float, kinks: bool = False, dedupe=None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Run the compiled LM over data (T, N) from x0 (T, P) for a supported model.
 
     ``kinks``: cut steps at sub-sensor horizons (ring, clipped cosine; see
-    :func:`_lm_trial`) -- not in the numpy reference.  ``group``, ``base``,
-    ``tol``: runs of a group (consecutive rows on the same data) stop at known
-    optima (:func:`_lm_all`); tol = 0 (default) turns this off.
+    :func:`_lm_trial`).  ``dedupe`` (:class:`~olsbayes.ml.lm.Dedupe`): runs of a
+    group (consecutive rows on the same data) stop at known optima (:func:`_lm_all`).
 
     Returns x (T, P), chi2 (T,), converged (T,), n_evaluations (T,) (two per
     iteration, as the numpy path counts) and stalled (T,).  Arguments are
@@ -363,12 +346,17 @@ def lm_batch(
           else np.require(frozen, np.bool_, ["C", "W"]))
     chi2, n_iter = np.empty(t), np.empty(t, np.int64)
     conv, stalled = np.empty(t, np.bool_), np.empty(t, np.bool_)
+    group, tol, cells = (1, 0.0, False) if dedupe is None else (
+        dedupe.group, dedupe.tol, dedupe.cells)
+    base = None if dedupe is None else dedupe.base
     b = (np.full((1, x.shape[1]), np.nan) if base is None
          else np.require(base, np.float64, ["C", "W"]))
-    if tol > 0.0 and (t % group or b.shape[0] != t // group):
+    if tol > 0.0 and b.shape[0] != t // group and base is not None:
         raise ValueError(f"lm_batch: {t} rows, group {group}, base rows {b.shape[0]}")
+    if base is None and tol > 0.0:
+        b = np.full((t // group, x.shape[1]), np.nan)
     _lm_all(kind, code, p, nrm, pos, float(z_floor), s, x, fz, int(max_iter), float(ftol),
-            bool(kinks), int(group), b, float(tol), bool(CELL_STOP and tol > 0.0), chi2, n_iter,
+            bool(kinks), int(group), b, float(tol), bool(cells and tol > 0.0), chi2, n_iter,
             conv, stalled)
     return x, chi2, conv, 2 * n_iter, stalled
 

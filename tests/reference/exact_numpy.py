@@ -1,10 +1,10 @@
-"""Numpy reference of the configuration scan of :func:`olsbayes.ml.exact.fit_exact`.
+"""Numpy reference of the configuration scan of :func:`olsbayes.ml.exact.enumerate_optimum`.
 
 Vectorised over chunks of configurations of a arcs and q pins: Gram matrices
 gathered from the states' table, a batched LDL^T with a rank test, LS solutions
 for all data vectors at once (the factorisations are shared by a batch), the
 closed-cell feasibility test, and the near-best candidates kept for the direct
-re-ranking.  :mod:`olsbayes.ml._exact_kernel` runs the same scan compiled, one
+re-ranking.  :mod:`olsbayes.ml._numba.exact` runs the same scan compiled, one
 configuration at a time; both return the same (see :func:`scan`).
 """
 
@@ -150,7 +150,7 @@ def scan(gram: np.ndarray, b: np.ndarray, units: np.ndarray, k: int, margin: np.
          rtol: float, ftol: float, max_candidates: int) -> tuple:
     """Every configuration of at most k states; near-best feasible ones per trial.
 
-    Same arguments and returns as :func:`olsbayes.ml._exact_kernel.scan`
+    Same arguments and returns as :func:`olsbayes.ml._numba.exact.scan`
     (candidates in another order).
     """
     n_t, m = b.shape[0], units.shape[0]

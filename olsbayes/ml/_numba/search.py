@@ -1,17 +1,14 @@
-"""Compiled (numba) grid search: the fast path of :func:`olsbayes.ml.search.grid_search`.
+"""Compiled (numba) grid search: twin of :mod:`olsbayes.ml.fast.search`.
 
-Runs, one trial at a time, the same stages as the numpy reference in
-:mod:`olsbayes.ml.search` -- orthogonal matching pursuit, alternating
-projection, runner-up positions of each source and the least-squares
-intensities of every candidate (the exhaustive K-tuple search of each coarse
-subset, :mod:`olsbayes.ml.tuples`, is :mod:`._tuple_kernel`) -- with the same
-scores, tie-breaking (first maximum) and stopping rules.  The orthonormal bases
-of the chosen atoms come from modified Gram–Schmidt instead of Householder QR
-and sums may be reassociated, so scores differ from the numpy ones by rounding
-only.
-
-For one data vector numpy's per-call overhead is most of the numpy search's
-cost; compiled, a K = 2 search on a 30-ring takes a few tens of microseconds.
+Runs, one trial at a time, the stages of the fast fit's search -- orthogonal
+matching pursuit, alternating projection, runner-up positions of each source and
+the least-squares intensities of every candidate (the exhaustive K-tuple scan of
+each coarse subset is :mod:`.tuples`) -- with the same scores, tie-breaking
+(first maximum) and stopping rules as the numpy reference the tests hold it
+against.  The orthonormal bases of the chosen atoms come from modified
+Gram–Schmidt instead of Householder QR and sums may be reassociated, so scores
+differ from the numpy ones by rounding only.  For one data vector numpy's
+per-call overhead would be most of the search's cost.
 """
 
 from __future__ import annotations
@@ -19,8 +16,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ._linalg_kernel import _solve
-from .tuples import NEIGHBOUR
+from ..atoms import NEIGHBOUR
+from .linalg import _solve
 
 __all__ = ["intensities_trials", "neighbours", "search_trials"]
 

@@ -1,4 +1,4 @@
-"""Compiled (numba) exhaustive K-tuple search (:func:`olsbayes.ml.tuples.tuple_search`).
+"""Compiled (numba) exhaustive K-tuple scan: twin of :mod:`olsbayes.ml.fast.tuples`.
 
 For each trial and coarse subset: the feasible K-tuple (all least-squares
 intensities >= 0) with the largest drop in the residual sum of squares, and
@@ -7,27 +7,22 @@ optionally (``distinct``) the best tuple none of whose atoms lies in the basin
 the likelihood, e.g. the rotated alias of a near-equilateral K = 3 scene.
 
 Trials run in blocks of up to :data:`TUPLE_BLOCK` lanes, tuples grouped by their
-prefix (:mod:`olsbayes.ml.tuples`): each prefix's solution is computed once per
-lane, each tuple extends it by block elimination.  Same arithmetic, in the same
-order, as :func:`olsbayes.ml.tuples.tuple_scores` and the same tie-breaking (first
-maximum, in tuple order), so the same tuples as the numpy reference.
+prefix (:mod:`olsbayes.ml.fast.tuples`): each prefix's solution is computed once
+per lane, each tuple extends it by block elimination.  Same arithmetic, in the
+same order, as the numpy reference of the tests and the same tie-breaking (first
+maximum, in tuple order), so the same tuples.
 
 The lanes' running maxima are stored unconditionally (``max``) and their
-arguments by a select: a conditional store compiles to a masked vector store,
-which on AMD Zen cost more than the rest of the loop (K = 4 on a 30-ring, 21
-subsets, per data vector: 0.27 ms with conditional stores and the K x K inverses,
-0.15 ms with these stores and the prefix extension).  K = 2, 3, 4 have unrolled
-kernels (:func:`_block_best2` ...) that repeat the lanes' update on purpose: as a
-called function, even with inline="always", it kept the loop from vectorising (with
-the K x K inverses: 0.76 ms called, 0.21 ms written out).
+arguments by a select, because a conditional store compiles to a masked vector
+store that costs more than the rest of the loop.  K = 2, 3, 4 have kernels written
+out per K (:func:`_block_best2` ...) that repeat the lanes' update on purpose: as a
+called function, even inlined, it kept the loop from vectorising.
 
-The kernels take the plan's float type (:data:`olsbayes.ml.tuples.SINGLE_PRECISION`):
-K = 4 plans score in float32, so a vector instruction holds twice the lanes, and
-their first pass (no blocked atoms) skips the penalty matrix: the K = 4 search of
-21 subsets per data vector took 0.17-0.19 ms before, 0.15 without the penalty
-matrix, 0.09-0.10 also in float32.  The constants -inf and 0 are taken from the
-lanes' arrays and a tuple's number from its plan (``ext``), so that no float64
-value enters a float32 loop.
+The kernels take the plan's float type (``FastOptions.single_precision``: K = 4
+scores in float32, so a vector instruction holds twice the lanes), and the K = 4
+first pass (no blocked atoms) skips the penalty matrix.  The constants -inf and 0
+are taken from the lanes' arrays and a tuple's number from its plan (``ext``), so
+that no float64 value enters a float32 loop.
 """
 
 from __future__ import annotations
@@ -35,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ._search_kernel import _matvec
+from .search import _matvec
 
 __all__ = ["PER_TRIAL_BELOW", "TUPLE_BLOCK", "tuple_trials"]
 
@@ -313,12 +308,12 @@ def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, nea
                  col, col2):  # pragma: no cover - compiled
     """Best feasible K-tuple (K >= 2) of one coarse plan per trial into out[:, col],
     and with col2 >= 0 the best one outside its atoms' basins (``near`` (Mc, Mc))
-    into out[:, col2] (the first one again if there is none) (tuples.tuple_search).
+    into out[:, col2] (the first one again if there is none).
 
     Blocks of up to :data:`TUPLE_BLOCK` trials, vectorised over the trials of a block;
     for K <= 3, fewer than :data:`PER_TRIAL_BELOW` trials one at a time
-    (:func:`_per_trial`, vectorised over tuples; at K = 4 one blocked lane is faster,
-    1.2 against 2.0 ms per data vector on a 30-ring).  The same tuples either way.
+    (:func:`_per_trial`, vectorised over tuples; at K = 4 the blocked kernel is the
+    faster even for one lane).  The same tuples either way.
     """
     mc, t = atoms.shape[0], data.shape[0]
     if t < PER_TRIAL_BELOW and columns.shape[0] <= 3:

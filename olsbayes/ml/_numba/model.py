@@ -3,7 +3,7 @@
 The three source kinds of :class:`~olsbayes.Model` (codes 0 angle, 1 lonlat,
 2 position) and the laws clipped cosine (code 0) and ``max(c, 0)**p`` (code 1);
 trig-free per sensor-source pair (one cos/sin per source and evaluation).  Used
-by :mod:`olsbayes.ml._kernel` and :mod:`olsbayes.ml._fit_kernel`.
+by :mod:`.lm`, :mod:`.fit` and :mod:`.refine`.
 """
 
 from __future__ import annotations

@@ -18,7 +18,12 @@ from ..errors import InputError
 from ..geometry import lonlat_to_unit
 from ..model import Model
 
-__all__ = ["default_grid", "cached_default_grid", "atoms", "grid_step"]
+__all__ = ["default_grid", "cached_default_grid", "check_grid", "atoms", "grid_step",
+           "NEIGHBOUR"]
+
+#: Normalised-atom correlation above which two atoms count as one basin (the
+#: neighbourhood of an atom in the searches of the fast fit).
+NEIGHBOUR = 0.95
 
 
 def _ring_grid(model: Model, density: float) -> np.ndarray:

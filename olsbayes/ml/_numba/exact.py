@@ -1,6 +1,6 @@
-"""Compiled (numba) configuration scan of :func:`olsbayes.ml.exact.fit_exact`.
+"""Compiled (numba) configuration scan: twin of :mod:`olsbayes.ml.exact`.
 
-The same enumeration as the numpy scan of :mod:`olsbayes.ml.exact` -- groups of
+The enumeration of :func:`olsbayes.ml.exact.enumerate_optimum` -- groups of
 a arcs and q pins, Gram matrices looked up in the states' table, LDL^T with the
 :data:`~olsbayes.ml.exact.RANK_RTOL` rank test, LS solutions, the closed-cell
 feasibility test with :data:`~olsbayes.ml.exact.FEAS_RTOL` slack and the
@@ -197,9 +197,7 @@ def scan(gram: np.ndarray, b: np.ndarray, units: np.ndarray, k: int, margin: np.
     count_feasible : bool
         Count the feasible configurations.  Without the count, the solution and
         feasibility test of a configuration whose gain is already below the best
-        minus the margin (never a candidate) are skipped: the same candidates,
-        ~2x faster for one data vector and ~5x per vector in a batch (30-ring,
-        K = 3, 4).
+        minus the margin (never a candidate) are skipped: the same candidates.
 
     Returns
     -------

@@ -1,4 +1,4 @@
-"""Small dense solves for the compiled LM (:mod:`olsbayes.ml._kernel`) and search kernels.
+"""Small dense solves for the compiled LM (:mod:`.lm`) and search (:mod:`.search`) kernels.
 
 Pivoted LU and Cholesky (with the LU as fallback) on P x P systems, P <= ~16,
 written out so that numba inlines them into the callers' loops.

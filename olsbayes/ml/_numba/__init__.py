@@ -1,0 +1,22 @@
+"""Compiled (numba) twins of the ML wing's numpy code, each named after its counterpart.
+
+=================  ==========================================================
+module             compiles
+=================  ==========================================================
+``model``          the forward model and its Jacobian (:mod:`olsbayes.model`)
+``linalg``         small dense solves (LU, Cholesky) for the kernels below
+``lm``             bounded Levenberg–Marquardt (:mod:`olsbayes.ml.lm`)
+``fit``            a result's chi^2, Fisher matrix and covariance (:mod:`olsbayes.ml.fit`)
+``refine``         kink hops and kink tests (:mod:`olsbayes.ml.fast.refine`)
+``search``         pursuit, alternation, runners-up (:mod:`olsbayes.ml.fast.search`)
+``tuples``         the exhaustive K-tuple scan (:mod:`olsbayes.ml.fast.tuples`)
+``escalate``       which fits to refit exactly (:mod:`olsbayes.ml.fast.escalate`)
+``exact``          the configuration scan (:mod:`olsbayes.ml.exact`)
+``rivals``         rival optima of angle fits (:mod:`olsbayes.ml.rivals`)
+``circular``       angle wrapping (:mod:`olsbayes.circular`)
+=================  ==========================================================
+
+numba is imported when a kernel is first needed, not with the package: importing
+this package imports nothing.  Every kernel is compiled once per machine and
+cached (``cache=True``).
+"""

@@ -1,0 +1,142 @@
+"""Polynomial-time global search on a grid of atoms, batched over trials.
+
+Two stages, both conditional least squares on the atom dictionary G (M, N):
+
+1. *Orthogonal matching pursuit*: pick the atom that best explains the data
+   (the matched filter ``G @ s`` normalised), project it out, repeat K times.
+2. *Alternating projection* (Ziskind & Wax, 1988): cycle over the K sources,
+   re-choosing each one's atom given the other K-1 atoms, whose intensities are
+   refitted jointly; stop when a sweep changes nothing.  Each move cannot
+   increase the residual, so the sweeps separate sources that greedy peel-off
+   merged (the main failure of pure matched filtering for K >= 3).
+
+The score of atom g given the span Q of the other atoms is the drop in the
+residual sum of squares, ``(g' P s)^2 / (g' P g)`` with P the projector onto
+the orthogonal complement of Q, kept only where ``g' P s > 0`` (a positive
+intensity).  Cost per move: O(T M N K).
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+
+from .options import FastOptions
+from .tuples import TuplePlan, tuple_plans
+
+__all__ = ["grid_search"]
+
+
+def _frozen_view(a: np.ndarray, dtype: type = float) -> np.ndarray:
+    """A C-contiguous read-only view (one array type, so one compiled signature)."""
+    v = np.ascontiguousarray(a, dtype=dtype).view()
+    v.flags.writeable = False
+    return v
+
+
+_VIEWS: dict = {}  # id -> (weakref, views) of read-only atom arrays and tuple plans
+
+
+def _memo(obj: object, make, readonly: bool = True) -> tuple:
+    """``make(obj)``, memoised for a live read-only object (the cached atoms, plans)."""
+    hit = _VIEWS.get(id(obj))
+    if hit is not None and hit[0]() is obj:
+        return hit[1]
+    out = make(obj)
+    if readonly:
+        if len(_VIEWS) >= 64:
+            _VIEWS.clear()
+        _VIEWS[id(obj)] = (weakref.ref(obj), out)
+    return out
+
+
+#: Largest M^2 N for which the atoms' basins (neighbour lists) are precomputed.
+_NEIGHBOUR_WORK = 50_000_000
+#: Largest M for which the atoms' Gram matrix (M^2 doubles) serves the search's projections.
+_GRAM_ATOMS = 1024
+
+
+def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Read-only views of the atoms, their Gram matrix (empty when M > :data:`_GRAM_ATOMS`),
+    squared norms, the unit atoms and the CSR neighbour lists of the unit atoms
+    (empty when M^2 N > :data:`_NEIGHBOUR_WORK`)."""
+    from .._numba import search as sk
+
+    def make(a: np.ndarray) -> tuple[np.ndarray, ...]:
+        gnorm2 = np.einsum("mn,mn->m", a, a)
+        unit = _frozen_view(a / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None])
+        if a.shape[0] ** 2 * a.shape[1] <= _NEIGHBOUR_WORK:
+            indptr, indices = sk.neighbours(unit)
+        else:
+            indptr, indices = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        gram = a @ a.T if a.shape[0] <= _GRAM_ATOMS else np.zeros((0, 0))
+        return (_frozen_view(a), _frozen_view(gram), _frozen_view(gnorm2), unit,
+                _frozen_view(indptr, np.int64), _frozen_view(indices, np.int64))
+
+    return _memo(g, make, readonly=not g.flags.writeable)
+
+
+def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
+    """Read-only kernel arguments of a (cached, immutable) tuple plan."""
+    return _memo(plan, lambda p: (
+        _frozen_view(p.atoms), _frozen_view(p.subset, np.int64),
+        _frozen_view(p.columns, np.uint64), _frozen_view(p.prefixes, np.uint64),
+        _frozen_view(p.prefix_inv, p.ext.dtype), _frozen_view(p.ext_ptr, np.int64),
+        _frozen_view(p.ext, p.ext.dtype),
+        _frozen_view(p.near, np.bool_)))
+
+
+def grid_search(g: np.ndarray, data: np.ndarray, k: int,
+                options: FastOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate K-atom explanations of every data vector (compiled, one trial at a time).
+
+    Parameters
+    ----------
+    g : ndarray, shape (M, N)
+        Atom responses (unit intensity), read-only for the memoised kernel views.
+    data : ndarray, shape (T, N)
+    k : int
+        Number of sources.
+    options : FastOptions
+        Resolved for K (:meth:`FastOptions.resolve`): ``max_sweeps``, ``n_coarse``
+        differently placed coarse subsets whose best K-tuple
+        (:mod:`~olsbayes.ml.fast.tuples`) is one more candidate each (subsets that
+        coincide, or have no full-rank K-tuple, count once or not at all: ``n_p <=
+        n_coarse`` plans), ``tuple_budget`` (K-tuples per subset),
+        ``single_precision``, ``runners_up`` (positions per source given the
+        others), ``distinct_modes`` (each subset's best tuple outside the basins of
+        its best one too: a second mode) and ``pursuit`` (pursuit, alternation and
+        runners-up as the first 1 + K runners_up candidates; where no coarse plan
+        exists the pursuit runs anyway).
+
+    Returns
+    -------
+    idx : ndarray of int, shape (T, C, K)
+        Candidate atom sets per trial: pursuit + alternation, the runners-up, the
+        best tuples of the subsets, then their second modes.
+    intensity : ndarray, shape (T, C, K)
+        Their least-squares intensities, clipped at 0.
+    rss : ndarray, shape (T, C)
+        Their (unconstrained) least-squares residual sums of squares.
+    """
+    from .._numba import search as sk  # numba is imported on first use
+    from .._numba import tuples as tk
+
+    gv, gram, gnorm2, unit, indptr, indices = _atom_views(g)
+    dtype = np.float32 if options.single_precision else np.float64
+    plans = tuple_plans(g, k, options.n_coarse, options.tuple_budget, dtype) if k >= 2 else []
+    pursuit = options.pursuit or not plans
+    n_alt, distinct = options.runners_up, options.distinct_modes
+    t, first, n_p = data.shape[0], (1 + k * n_alt) * pursuit, len(plans)
+    idx = np.empty((t, first + n_p * (1 + bool(distinct)), k), dtype=np.int64)
+    s = _frozen_view(data)
+    if pursuit:
+        sk.search_trials(gv, gram, gnorm2, unit, indptr, indices, s, k, options.max_sweeps,
+                         n_alt, idx)
+    for j, plan in enumerate(plans):
+        tk.tuple_trials(*_plan_views(plan), s, idx, first + j,
+                        first + n_p + j if distinct else -1)
+    inten, rss = np.empty(idx.shape), np.empty(idx.shape[:2])
+    sk.intensities_trials(gv, s, idx, inten, rss)
+    return idx, inten, rss

@@ -1,0 +1,218 @@
+"""Public entry point :func:`fit_ml`: validate, scale, dispatch, assemble the result."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import as_rng
+from ..bounds import SINGULAR_RTOL, bound_covariance
+from ..errors import ConvergenceWarning, InputError, MultimodalWarning
+from ..model import Model
+from .atoms import cached_default_grid, check_grid
+from .exact import check_exact, enumerate_optimum
+from .fast import FastOptions, fit_fast
+from .inputs import check_fit_inputs
+from .multistart import MultistartOptions, fit_multistart
+from .outcome import FitOutcome
+from .result import MLResult
+from .rivals import DISTINCT_STD, RIVAL_WARN, rival_gap
+from .scaling import reading_scales, rescale, scaled_model
+
+__all__ = ["fit_ml", "METHODS"]
+
+
+@dataclass(frozen=True)
+class _Method:
+    """One estimator: the type of its options (None: it takes none) and its runner
+    ``run(model, data (T, N), K, grid, options, rng, scales (T,)) -> FitOutcome``."""
+
+    options: type | None
+    run: Callable[..., FitOutcome]
+
+
+def _run_fast(model, s, k, grid, options, gen, scale) -> FitOutcome:
+    return fit_fast(model, s, k, grid, options)
+
+
+def _run_multistart(model, s, k, grid, options, gen, scale) -> FitOutcome:
+    """Data divided by ``scale`` (T,): sigma scaled alike per data vector (the
+    objective is in units of sigma), in order (one rng stream)."""
+    if np.all(scale == 1.0):
+        return fit_multistart(model, s, k, grid, gen, options)
+    parts = [fit_multistart(scaled_model(model, float(c)), s[i : i + 1], k, grid, gen, options)
+             for i, c in enumerate(scale)]
+    return FitOutcome(*(np.concatenate([getattr(o, f) for o in parts])
+                        for f in ("x", "chi2", "converged", "n_evaluations")),
+                      alternatives=tuple(np.concatenate([o.alternatives[j] for o in parts])
+                                         for j in (0, 1)))
+
+
+def _run_exact(model, s, k, grid, options, gen, scale) -> FitOutcome:
+    """Data divided by ``scale`` (T,), converged by construction, evaluations =
+    configurations.  Data vectors sharing a scale run in one batch with sigma scaled
+    alike: the enumeration ranks its candidates by log-likelihood, whose chi^2 term
+    would vanish in rounding against -N log sigma otherwise."""
+    t, p = s.shape[0], model.n_params(k)
+    x, nconf = np.empty((t, p)), np.empty(t, dtype=np.int64)
+    for c in np.unique(scale):
+        rows = scale == c
+        ex = enumerate_optimum(scaled_model(model, float(c)), s[rows], k)
+        x[rows], nconf[rows] = ex.params, ex.n_configurations
+    chi2 = np.sum((s - model.response(x)) ** 2, axis=-1)
+    return FitOutcome(x, chi2, np.ones(t, dtype=bool), nconf, np.zeros(t, dtype=bool))
+
+
+_METHODS = {
+    "fast": _Method(FastOptions, _run_fast),
+    "multistart": _Method(MultistartOptions, _run_multistart),
+    "exact": _Method(None, _run_exact),
+}
+
+#: Accepted values of ``method``.
+METHODS = tuple(_METHODS)
+
+
+def _check_options(model: Model, k: int, method: object, options: object) -> object:
+    """The method's options, validated and resolved for the model and K."""
+    if method not in _METHODS:
+        raise InputError(f"method must be one of {METHODS}; got {method!r}")
+    kind = _METHODS[method].options
+    if kind is None:
+        if options is not None:
+            raise InputError(f"method={method!r} takes no options; got {options!r}")
+        check_exact(model, k)
+        return None
+    options = kind() if options is None else options
+    if not isinstance(options, kind):
+        raise InputError(f"options for method={method!r} must be a {kind.__name__}; got "
+                         f"{type(options).__name__}")
+    return options.resolve(model, k) if isinstance(options, FastOptions) else options
+
+
+def fit_ml(
+    model: Model,
+    data: np.ndarray,
+    n_sources: int,
+    method: str = "fast",
+    *,
+    options: FastOptions | MultistartOptions | None = None,
+    grid: np.ndarray | None = None,
+    rng: np.random.Generator | int | None = None,
+    warn: bool = True,
+) -> MLResult:
+    """Maximum-likelihood fit of ``n_sources`` sources (Eq. 2), one or many data vectors.
+
+    Parameters
+    ----------
+    model : Model
+        Forward model (array, noise sigma, sensitivity law); ring, sphere or plate.
+    data : array_like, shape (N,) or (T, N)
+        Readings.  A 2-D array fits T independent data vectors in one vectorised call.
+    n_sources : int
+        Number K of sources, 1 <= K and K (d + 1) <= N.
+    method : {"fast", "multistart", "exact"}
+        ``"fast"``: a polynomial-time global search on a grid of atoms (matching
+        pursuit, alternating projection and the best K-tuples of coarse atom
+        subsets), then joint bounded Levenberg–Marquardt with deterministic
+        restarts and kink moves, batched over data vectors
+        (:mod:`olsbayes.ml.fast`; deterministic).
+        ``"multistart"``: the paper's baseline, pseudo-random starts each refined
+        by L-BFGS-B (:mod:`olsbayes.ml.multistart`).
+        ``"exact"``: the global optimum by enumerating the likelihood's linear
+        cells (:mod:`olsbayes.ml.exact`); rings with the clipped cosine and K <= 4
+        only; ``n_evaluations`` counts the configurations solved.
+    options : FastOptions or MultistartOptions, optional
+        The method's settings (default: the record's defaults); ``"exact"`` takes none.
+    grid : array_like, shape (M, d), optional
+        Candidate source locations for the search (default
+        :func:`olsbayes.ml.atoms.default_grid`); also the box of multistart
+        positions on a plate.
+    rng : Generator, int or None
+        Randomness of the multistart starts; the other methods are deterministic.
+    warn : bool
+        Warn :class:`~olsbayes.errors.ConvergenceWarning` when a fit did not converge,
+        :class:`~olsbayes.errors.MultimodalWarning` when a distinct local optimum is
+        within 3 of a fit's log-likelihood (``MLResult.rival_gap``).
+
+    Returns
+    -------
+    MLResult
+        Canonical-order estimates, log-likelihood, convergence flags, evaluation
+        counts and the inverse-Fisher covariance at each estimate.
+
+    Raises
+    ------
+    InputError
+        Bad model, data (wrong length, non-finite, more than 2-D), n_sources, method,
+        options (of another method, or out of range) or grid.
+    """
+    arr, k = check_fit_inputs(model, data, n_sources)
+    opts = _check_options(model, k, method, options)
+    # deterministic methods: validate an rng given, but draw no OS entropy for None
+    gen = as_rng(rng) if method == "multistart" or rng is not None else None
+    g = cached_default_grid(model) if grid is None else check_grid(model, grid)
+    batch = arr.ndim == 2
+    s = arr if batch else arr[None, :]
+    scale = reading_scales(s)  # readings far from order 1: fitted in scaled units
+    scaled = bool(np.any(scale != 1.0))
+    out = _METHODS[method].run(model, s / scale[:, None] if scaled else s, k, g, opts, gen,
+                               scale)
+    if scaled:
+        out = rescale(model, out, scale)
+    return _result(model, s, k, method, out, batch, warn)
+
+
+def _statistics(model: Model, x: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Log-likelihood (T,) and inverse Fisher matrices (T, P, P) at the estimates x (T, P)
+    of data s (T, N), by the rule of :func:`olsbayes.bounds.bound_covariance`."""
+    from ._numba import fit, lm  # numba is imported on first use, not with the package
+
+    if not lm.supports(model):
+        return model.log_likelihood(x, s), bound_covariance(model.fisher(x))[0]
+    chi2, fisher = fit.chi2_fisher(model, x, s)  # compiled: chi^2 and Fisher in one pass
+    n = model.n_sensors
+    ll = -0.5 * chi2 / model.sigma**2 - n * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
+    if np.isfinite(fisher).all():
+        return ll, fit.covariances(fisher, SINGULAR_RTOL)
+    return ll, bound_covariance(fisher)[0]
+
+
+def _warn(method: str, gap: np.ndarray, converged: np.ndarray) -> None:
+    if np.any(gap < RIVAL_WARN):
+        bad = int(np.sum(gap < RIVAL_WARN))
+        warnings.warn(
+            f"{bad} of {gap.size} ML fit(s) ({method}) reached a distinct local optimum "
+            f"(sources > {DISTINCT_STD:g} Fisher std away) within {RIVAL_WARN:g} of the "
+            "estimate's log-likelihood: the likelihood is multimodal there and the Fisher "
+            "covariance understates the uncertainty; see MLResult.rival_gap, or sample the "
+            "posterior (olsbayes.sample_posterior)",
+            MultimodalWarning,
+            stacklevel=4,
+        )
+    if not np.all(converged):
+        bad = int(np.sum(~converged))
+        warnings.warn(
+            f"{bad} of {converged.size} ML fit(s) ({method}) did not meet the "
+            "convergence criterion of the local optimiser; see MLResult.converged",
+            ConvergenceWarning,
+            stacklevel=4,
+        )
+
+
+def _result(model: Model, s: np.ndarray, k: int, method: str, out: FitOutcome, batch: bool,
+            warn: bool) -> MLResult:
+    """The MLResult of an outcome: canonical order, statistics, rivals, warnings."""
+    x = model.canonical(out.x)
+    ll, cov = _statistics(model, x, s)
+    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    gap = rival_gap(model, x, out.chi2, out.alternatives, std)
+    if warn:
+        _warn(method, gap, out.converged)
+    sel = (lambda a: a) if batch else (lambda a: a[0])
+    return MLResult(params=sel(x), log_likelihood=sel(ll), converged=sel(out.converged),
+                    n_evaluations=sel(out.n_evaluations), cov=sel(cov), rival_gap=sel(gap),
+                    method=method, n_sources=k, model=model)
