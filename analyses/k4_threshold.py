@@ -12,7 +12,7 @@ mode, by LM started at the truth.  Printed and saved per sigma:
 * the efficiency (CRLB variance / mean squared error, min over the 8
   parameters) of the ML, quantiles over scenes; its sampling sd is ~sqrt(2/T);
 * the share of scenes whose ML efficiency is >= 0.95 - 2 sqrt(2/T) (consistent
-  with the 0.95 target of issue 3);
+  with an efficiency of 0.95);
 * the same for the local oracle: the gap between the two is the ML's jumps to
   another linear cell of the likelihood (a rival mode), not noise around the
   truth's mode.  The oracle is also the control of the statistic: the minimum of

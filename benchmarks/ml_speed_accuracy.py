@@ -47,7 +47,7 @@ error), failure rate (some parameter off by more than 5 CRLB std), the share of
 fits reaching the best optimum any method (the exact one, or the oracle) found
 -- to within 1e-6 and 1e-3 in log-likelihood -- and the median time per fit, as
 CPU time of this process (``time.process_time``) and wall-clock time.  Then the
-speed ratios, and issue 3's targets judged on this run.  CPU time is the primary
+speed ratios, and the ML estimator's targets judged on this run.  CPU time is the primary
 measure: the machine is shared, and wall-clock times include waiting for a core,
 which depends on other processes' load.  Run ``python
 benchmarks/ml_speed_accuracy.py`` (quick, a few minutes) or ``--full`` (T = T_ms
@@ -221,7 +221,7 @@ def _verdict(ok: bool) -> str:
 
 
 def print_targets(rows: list[dict]) -> None:
-    """Issue 3's targets, judged on this run's rows (speed ratios in CPU time).
+    """The ML estimator's targets, judged on this run's rows (speed ratios in CPU time).
 
     Efficiency counts as met at >= 0.95 - 2 sd (sd = sqrt(2 / T), the sampling sd
     of a variance ratio); a miss is shown next to the exact ML's and the oracle's

@@ -1,10 +1,34 @@
-"""Shared pytest set-up: a non-interactive matplotlib backend for every test.
+"""Shared pytest set-up.
 
-The numpy references of the compiled kernels live in ``tests/reference`` (import
-them as ``from reference.<module> import ...``); pytest puts this folder on
-``sys.path`` because it holds this conftest.
+* A non-interactive matplotlib backend for every test.
+* ``rng``: a ``numpy.random.Generator`` seeded from the test's own id, so every test
+  has a fixed, distinct stream without sharing one.
+* Every compiled kernel is built once per session before the first test (numba
+  compiles on first call), so that no single test is charged with the compilation.
+* The ``slow`` marker (``-m "not slow"`` skips the longest end-to-end tests).
+* The numpy references of the compiled kernels live in ``tests/reference``: import
+  them as ``from reference.<module> import ...`` (this folder is on ``sys.path``
+  because it holds this conftest).
 """
 
 import os
+import zlib
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def rng(request) -> np.random.Generator:
+    """A Generator seeded by the CRC-32 of the test's node id."""
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _compiled_kernels() -> None:
+    """Compile (or load from numba's cache) every kernel once, before the first test."""
+    from olsbayes.ml.warmup import compile_kernels
+
+    compile_kernels()

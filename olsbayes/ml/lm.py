@@ -25,13 +25,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..model import Model
+from . import damping
 from .outcome import FitOutcome
 
-__all__ = ["Dedupe", "project", "refine_batch", "refine_batch_numpy", "z_floor", "LAMBDA_MAX"]
-
-#: Damping above which no descent step is representable: the point is a local
-#: minimum to working precision (e.g. sitting on the kink of the clipped cosine).
-LAMBDA_MAX = 1e14
+__all__ = ["Dedupe", "project", "refine_batch", "refine_batch_numpy", "z_floor"]
 
 #: Jacobian entries (trials x P x N) per block of an LM iteration on a large
 #: batch (see :func:`_propose`): ~1 MiB, so the intermediates stay in cache.
@@ -85,7 +82,7 @@ def _lm_step(
     t, p = x.shape
     at_bound = (x[:, d1 - 1 :: d1] <= 0.0) & (g[:, d1 - 1 :: d1] <= 0.0)
     diag = a.reshape(t, p * p)[:, :: p + 1]
-    floor = 1e-9 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
+    floor = damping.EIG_FLOOR * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
     a_d = a.copy()
     a_d_diag = a_d.reshape(t, p * p)[:, :: p + 1]  # writeable view of the diagonals
     a_d_diag += lam[:, None] * np.maximum(diag, floor)
@@ -293,7 +290,7 @@ def _lm_numpy(model: Model, data: np.ndarray, x0: np.ndarray, max_iter: int, fto
     # Working set of the active runs (rows ``rows`` of the outputs), compacted
     # only when some runs finish: no gather/scatter in the other iterations.
     rows = np.arange(t)
-    xa, da, la = x.copy(), data, np.full(t, 1e-3)
+    xa, da, la = x.copy(), data, np.full(t, damping.START)
     fz = frozen
     ka, ca = (None, None) if stop is None else stop[:2]
     for it in range(max_iter):
@@ -304,9 +301,9 @@ def _lm_numpy(model: Model, data: np.ndarray, x0: np.ndarray, max_iter: int, fto
         acc = chi2_new < chi2_old
         small = (acc & (chi2_old - chi2_new <= tiny)) | (pred <= tiny)
         xa = np.where(acc[:, None], x_new, xa)
-        la = np.where(acc, np.maximum(la / 5.0, 1e-12), la * 8.0)
+        la = np.where(acc, np.maximum(la / damping.DOWN, damping.FLOOR), la * damping.UP)
         near = np.zeros_like(acc) if stop is None else acc & _within(xa, ka, ca, stop[2])
-        stall = (la > LAMBDA_MAX) & ~small & ~near
+        stall = (la > damping.MAX) & ~small & ~near
         fin = small | stall | near
         if fin.any():
             out = rows[fin]

@@ -35,7 +35,7 @@ import numpy as np
 
 from ...model import Model
 from ...sensitivity import CosinePower, is_clipped_cosine
-from ..lm import LAMBDA_MAX
+from ..damping import DOWN, EIG_FLOOR, FLOOR, MAX, START, UP
 from .linalg import _solve_spd
 from .model import _LAW_COSINE, _LAW_POWER, _residual
 
@@ -106,7 +106,7 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
     top = 0.0
     for i in range(p):
         top = max(top, a[i, i])
-    floor = 1e-9 * max(top, 1e-300)
+    floor = EIG_FLOOR * max(top, 1e-300)
     for i in range(p):
         fx[i] = fz[i]
     for i in range(d1 - 1, p, d1):  # intensities at the bound, gradient outwards
@@ -239,7 +239,7 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
     kinks = kinks and kind == 0 and law == _LAW_COSINE
     for i in range(x.size):
         fk[i] = fz[i]
-    lam = 1e-3
+    lam = START
     chi2_old = _residual(kind, law, p, nrm, pos, x, s, jt, r, True)
     _normal_eq(jt, r, a, g)
     for it in range(max_iter):
@@ -266,7 +266,7 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
         if acc:
             x[:] = xn
             if not cut:
-                lam = max(lam / 5.0, 1e-12)
+                lam = max(lam / DOWN, FLOOR)
             if _near(known, n_known, x, tol):
                 return chi2_new, it + 1, True, False
             j = _known_cell(jt2, known_vis, known_ok, n_known) if cells else -1
@@ -275,8 +275,8 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
                 chi2_new = _residual(kind, law, p, nrm, pos, x, s, jt2, r2, False)
                 return chi2_new, it + 1, True, False
         else:
-            lam *= 8.0
-        stall = lam > LAMBDA_MAX and not small
+            lam *= UP
+        stall = lam > MAX and not small
         if small or stall:
             return (chi2_new if acc else chi2_old), it + 1, True, stall
         if acc:
