@@ -10,10 +10,12 @@ from pathlib import Path
 from olsbayes import run_study
 from olsbayes._io import ensure_dir
 
+__all__ = ["parser", "study", "slug", "table"]
+
 
 def parser(name: str, doc: str) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=doc.split("\n")[0])
-    ap.add_argument("--full", action="store_true", help="paper-size run (hours on 2 cores)")
+    ap.add_argument("--full", action="store_true", help="paper-size run")
     ap.add_argument("--out", type=Path, default=Path("out") / name, help="output folder")
     ap.add_argument("--executor", default="processes",
                     choices=("serial", "threads", "processes", "dask"))
@@ -36,6 +38,12 @@ def study(args: argparse.Namespace, tag: str, trial, grid: dict, n_trials: int,
         checkpoint=out / f"{tag}-{mode}.ckpt", out=out / f"{tag}-{mode}.nc",
         rng=args.seed + seed_offset, progress=not args.no_progress, chunk_size=chunk_size,
     )
+
+
+def slug(label: str) -> str:
+    """A file-name part from an estimator label, e.g. "multistart(n_starts=5)" ->
+    "multistart-n_starts5"."""
+    return label.replace("(", "-").replace(")", "").replace("=", "").replace(", ", "-")
 
 
 def table(header: list[str], rows: list[list], digits: int = 3) -> str:

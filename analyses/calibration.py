@@ -17,10 +17,10 @@ the scenes' own fluctuation (binomial, se 0.021 at 200 replicates) apart from a
 defect of the sampler: the paired difference sampler - exact has a much smaller se.
 
 Quick (default): K = 1 and K = 2 (sorted directions), 200 replicates each, chains
-run to 20 autocorrelation times; K-selection 300 replicates (~15 min on 2 idle
-cores: about one K = 2 replicate in six has a dim or close second source whose
-chain needs thousands of steps).  --full: 500 replicates each, 50 autocorrelation
-times; K-selection 1000 replicates.
+run to 20 autocorrelation times; K-selection 300 replicates (some K = 2
+replicates have a dim or close second source whose chain needs thousands of
+steps).  --full: 500 replicates each, 50 autocorrelation times; K-selection 1000
+replicates.
 
 Outputs in --out: calibration.png, calibration.nc (summary), the raw study
 NetCDF files, calibration.txt (the printed table).
@@ -39,13 +39,15 @@ from _study_cli import parser, study, table  # noqa: E402
 from olsbayes.studies.sbc import N_DRAWS, rank_test, sbc_k, sbc_posterior  # noqa: E402
 from olsbayes.studies.sbc_exact import sbc_exact  # noqa: E402
 
+__all__ = ["main"]
+
 N_BINS = 10  # 100 possible ranks -> 10 equal bins
 
 
 def run_posterior_sbc(args, k: int, n: int):
     fixed = {"n_sensors": 16, "sigma": 0.05, "n_sources": k, "i_max": 2.0,
              "tau_multiple": 50.0 if args.full else 20.0, "max_steps": 20000}
-    # small chunks: a few replicates (a dim or close second source) run 10-30x longer
+    # small chunks: a few replicates (a dim or close second source) run much longer
     return study(args, f"sbc-k{k}", sbc_posterior, {}, n, fixed=fixed, seed_offset=k,
                  chunk_size=4)
 
@@ -92,7 +94,7 @@ def summarise(ds, k: int, rng) -> tuple[list, dict]:
     n = ds.sizes["trial"]
     for p, name in enumerate(names):
         r = ds["rank"].values[:, p]
-        rt = rank_test(r, N_DRAWS, N_BINS, rng)
+        rt = rank_test(r, N_DRAWS, N_BINS, rng=rng)
         c50, c90 = _coverage(r, 0.5), _coverage(r, 0.9)
         rows.append([f"K={k} {name}", n, rt.chi2, rt.p_value, rt.ks_p_value, c50,
                      np.sqrt(0.25 / n), c90, np.sqrt(0.09 / n)])

@@ -4,11 +4,12 @@ Ring of N sub-sensors (16 quick, 30 --full), K in {1, 2, 3} sources of
 intensity 1, 90 deg apart (a quarter-circle grid: three equal sources spread
 evenly, 120 deg apart, are nearly unidentifiable under the clipped cosine, whose
 harmonics 1, 2, 4 then cancel), at a uniformly random rotation, noise sigma in
-{1e-3, 1e-2, 1e-1}.  Methods (:func:`olsbayes.studies.estimators.ring_estimate`):
-ML fast (one fit per call), ML fast batched (all trials of a cell in one call),
-the paper's multistart baseline with M = 2, 5, 20 starts, the posterior mean of
-emcee chains of a few fixed lengths, and the posterior mean of dynesty nested
-sampling under a likelihood-call cap.
+{1e-3, 1e-2, 1e-1}.  Estimators (:func:`olsbayes.studies.estimators.ring_estimate`,
+each an :class:`~olsbayes.studies.Estimator`): ML fast (one fit per call), ML
+fast batched (all trials of a cell in one call), the paper's multistart baseline
+with n_starts = 2, 5, 20, the posterior mean of emcee chains of a few fixed
+lengths (n_steps), and the posterior mean of dynesty nested sampling under a
+likelihood-call cap (max_calls).
 
 y = sqrt(mean over trials of mean over sources of (error / CRLB std)^2) of the
 directions (1 = efficient; the CRLB is evaluated at each trial's truth); its
@@ -20,11 +21,10 @@ parameter off by more than 5 CRLB std; "of which ll>=truth" = those failures who
 estimate has a log-likelihood at least that of the truth (an ambiguity of the
 likelihood, not a search failure).  Hollow markers: most trials not converged (an
 emcee chain shorter than 50 autocorrelation times, or nested sampling stopped by
-its likelihood-call cap: 10000 quick, 50000 --full; at sigma = 1e-3 on N = 30 it
-needed ~45000 calls for K = 1 and more than 200000 for K = 3).
+its likelihood-call cap: 10000 quick, 50000 --full).
 
 Outputs in --out: speed_vs_accuracy.png, speed_vs_accuracy.nc (summary), one
-NetCDF per method group (raw trials, resumable checkpoints), speed_vs_accuracy.txt.
+NetCDF per estimator (raw trials, resumable checkpoints), speed_vs_accuracy.txt.
 """
 
 from __future__ import annotations
@@ -35,57 +35,67 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _study_cli import parser, study, table  # noqa: E402
+from _study_cli import parser, slug, study, table  # noqa: E402
 
+from olsbayes.studies import Estimator  # noqa: E402
 from olsbayes.studies.estimators import ring_estimate  # noqa: E402
+
+__all__ = ["main"]
 
 SIGMAS = [1e-3, 1e-2, 1e-1]
 KS = [1, 2, 3]
-QUICK = {"fast": 40, "fast_batched": 40, "multistart_2": 6, "multistart_5": 4,
-         "multistart_20": 2, "posterior_200": 3, "posterior_1000": 2, "nested": 1}
-FULL = {"fast": 400, "fast_batched": 400, "multistart_2": 100, "multistart_5": 60,
-        "multistart_20": 30, "posterior_200": 40, "posterior_1000": 30, "posterior_5000": 20,
-        "nested": 20}
 
 
-def summarise(ds, method: str) -> dict:
+FAST, BATCHED = Estimator("fast"), Estimator("fast", batched=True)
+#: (estimator, trials per cell), in the order of the study seeds (seed offset j)
+QUICK = [(FAST, 40), (BATCHED, 40), (Estimator("multistart", n_starts=2), 6),
+         (Estimator("multistart", n_starts=5), 4), (Estimator("multistart", n_starts=20), 2),
+         (Estimator("posterior", n_steps=200), 3), (Estimator("posterior", n_steps=1000), 2),
+         (Estimator("nested", max_calls=10000), 1)]
+FULL = [(FAST, 400), (BATCHED, 400), (Estimator("multistart", n_starts=2), 100),
+        (Estimator("multistart", n_starts=5), 60), (Estimator("multistart", n_starts=20), 30),
+        (Estimator("posterior", n_steps=200), 40), (Estimator("posterior", n_steps=1000), 30),
+        (Estimator("posterior", n_steps=5000), 20), (Estimator("nested", max_calls=50000), 20)]
+
+
+def summarise(ds) -> dict:
     z2 = ds["dir_z2"].where(np.isfinite(ds["dir_z2"]))
     n = z2.count("trial")
     m = z2.mean("trial")
     se = z2.std("trial", ddof=1) / np.sqrt(n)
     ratio = np.sqrt(m)
     return {
-        "rmse_ratio": ratio.squeeze("method", drop=True),
-        "rmse_ratio_se": (se / (2 * ratio)).squeeze("method", drop=True),
-        "seconds": ds["seconds"].median("trial").squeeze("method", drop=True),
-        "cpu_seconds": ds["cpu_seconds"].median("trial").squeeze("method", drop=True),
-        "fail": (ds["max_z"] > 5).mean("trial").squeeze("method", drop=True),
+        "rmse_ratio": ratio.squeeze("estimator", drop=True),
+        "rmse_ratio_se": (se / (2 * ratio)).squeeze("estimator", drop=True),
+        "seconds": ds["seconds"].median("trial").squeeze("estimator", drop=True),
+        "cpu_seconds": ds["cpu_seconds"].median("trial").squeeze("estimator", drop=True),
+        "fail": (ds["max_z"] > 5).mean("trial").squeeze("estimator", drop=True),
         # failures whose estimate fits the data at least as well as the truth: the
         # likelihood itself is ambiguous there, no optimiser could do better
         "fail_ambiguous": ((ds["max_z"] > 5) & (ds["ll_gain"] >= 0)).mean("trial").squeeze(
-            "method", drop=True),
-        "converged": ds["converged"].mean("trial").squeeze("method", drop=True),
-        "n": n.squeeze("method", drop=True),
+            "estimator", drop=True),
+        "converged": ds["converged"].mean("trial").squeeze("estimator", drop=True),
+        "n": n.squeeze("estimator", drop=True),
     }
 
 
 def plot(summary, path) -> None:
     import matplotlib.pyplot as plt
 
-    methods = list(summary.method.values)
+    labels = list(summary.estimator.values)
     markers = {1: "o", 2: "s", 3: "^"}
     fig, axes = plt.subplots(1, len(SIGMAS), figsize=(5 * len(SIGMAS), 4.6), sharey=True,
                              squeeze=False)
     axes = axes[0]
     for ax, sig in zip(axes, SIGMAS):
-        for i, meth in enumerate(methods):
+        for i, label in enumerate(labels):
             for k in KS:
-                c = summary.sel({"method": meth, "sigma": sig, "n_sources": k})
+                c = summary.sel({"estimator": label, "sigma": sig, "n_sources": k})
                 hollow = float(c.converged) < 0.5
                 ax.errorbar(float(c.cpu_seconds), float(c.rmse_ratio), yerr=float(c.rmse_ratio_se),
                             fmt=markers[k], color=f"C{i}", ms=6, capsize=2,
                             mfc="none" if hollow else f"C{i}",
-                            label=meth if (k == 1) else None)
+                            label=label if (k == 1) else None)
         ax.axhline(1.0, color="k", lw=0.8, ls="--")
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -105,28 +115,24 @@ def main() -> None:
     args = parser("speed_vs_accuracy", __doc__).parse_args()
     import xarray as xr
 
-    plan = FULL if args.full else QUICK
-    fixed = {"n_sensors": 30 if args.full else 16, "intensity": 1.0, "slots": 4,
-             "maxcall": 50000 if args.full else 10000}
+    fixed = {"n_sensors": 30 if args.full else 16, "intensity": 1.0, "slots": 4}
     parts = []
-    for j, (method, n) in enumerate(plan.items()):
-        ds = study(args, f"sva-{method}", ring_estimate,
-                   {"method": [method], "sigma": SIGMAS, "n_sources": KS}, n, fixed=fixed,
-                   seed_offset=j, chunk_size=n if method == "fast_batched" else None)
-        s = summarise(ds, method)
-        parts.append(xr.Dataset(s).expand_dims(method=[method]))
-    summary = xr.concat(parts, "method", data_vars="all")
-    summary.attrs.update({"n_sensors": fixed["n_sensors"], "seed": args.seed,
-                          "nested_maxcall": fixed["maxcall"]})
+    for j, (est, n) in enumerate(FULL if args.full else QUICK):
+        ds = study(args, f"sva-{slug(est.label)}", ring_estimate,
+                   {"estimator": [est], "sigma": SIGMAS, "n_sources": KS}, n, fixed=fixed,
+                   seed_offset=j, chunk_size=n if est == BATCHED else None)
+        parts.append(xr.Dataset(summarise(ds)).expand_dims(estimator=[est.label]))
+    summary = xr.concat(parts, "estimator", data_vars="all")
+    summary.attrs.update({"n_sensors": fixed["n_sensors"], "seed": args.seed})
     rows = []
-    for meth in summary.method.values:
+    for label in summary.estimator.values:
         for sig in SIGMAS:
             for k in KS:
-                c = summary.sel({"method": meth, "sigma": sig, "n_sources": k})
-                rows.append([str(meth), sig, k, int(c.n), float(c.rmse_ratio),
+                c = summary.sel({"estimator": label, "sigma": sig, "n_sources": k})
+                rows.append([str(label), sig, k, int(c.n), float(c.rmse_ratio),
                              float(c.rmse_ratio_se), float(c.cpu_seconds), float(c.seconds),
                              float(c.fail), float(c.fail_ambiguous), float(c.converged)])
-    text = table(["method", "sigma", "K", "n", "RMSE/CRLB", "se", "cpu s/est", "wall s/est",
+    text = table(["estimator", "sigma", "K", "n", "RMSE/CRLB", "se", "cpu s/est", "wall s/est",
                   "fail>5sd", "of which ll>=truth", "converged"], rows)
     print(text)
     summary.to_netcdf(args.out / "speed_vs_accuracy.nc", engine="h5netcdf")

@@ -31,18 +31,25 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _study_cli import parser, study, table  # noqa: E402
+from _study_cli import parser, slug, study, table  # noqa: E402
 
+from olsbayes.studies import Estimator  # noqa: E402
 from olsbayes.studies.estimators import ring_estimate  # noqa: E402
+
+__all__ = ["main"]
 
 N = 16
 SPACING = 2 * np.pi / N
 SEPS = [0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0]  # in sensor spacings
 SIGMAS = [1e-3, 1e-2, 3e-2, 1e-1, 3e-1]
-QUICK = {"fast": 20, "multistart_5": 4, "posterior_300": 3}
-FULL = {"fast": 200, "multistart_5": 40, "multistart_20": 20, "posterior_300": 30,
-        "posterior_2000": 20}
-SELECT = ("fast",)  # methods whose trials also choose K (select_k); "wrong K" counts there
+FAST = Estimator("fast")
+#: (estimator, trials per cell), in the order of the study seeds (seed offsets j, 100 + j)
+QUICK = [(FAST, 20), (Estimator("multistart", n_starts=5), 4),
+         (Estimator("posterior", n_steps=300), 3)]
+FULL = [(FAST, 200), (Estimator("multistart", n_starts=5), 40),
+        (Estimator("multistart", n_starts=20), 20), (Estimator("posterior", n_steps=300), 30),
+        (Estimator("posterior", n_steps=2000), 20)]
+SELECT = (FAST.label,)  # estimators whose trials also choose K (select_k); "wrong K" there
 
 
 def failures(ds) -> dict:
@@ -70,11 +77,11 @@ def rates(ds):
 def plot(maps, kink, path) -> None:
     import matplotlib.pyplot as plt
 
-    methods = list(maps.method.values)
-    fig, axes = plt.subplots(1, len(methods) + 1, figsize=(4.3 * (len(methods) + 1), 4.2))
+    labels = list(maps.estimator.values)
+    fig, axes = plt.subplots(1, len(labels) + 1, figsize=(4.3 * (len(labels) + 1), 4.2))
     snr = 1 / np.array(SIGMAS)
-    for ax, meth in zip(axes, methods):
-        m = maps.sel({"method": meth})
+    for ax, label in zip(axes, labels):
+        m = maps.sel({"estimator": label})
         im = ax.pcolormesh(np.arange(len(SEPS) + 1), np.arange(len(SIGMAS) + 1),
                            m.fail_estimate.transpose("sigma", "separation").values, vmin=0,
                            vmax=1,
@@ -91,21 +98,21 @@ def plot(maps, kink, path) -> None:
         ax.set_yticks(np.arange(len(SIGMAS)) + 0.5, [f"{s:.0f}" for s in snr])
         ax.set_xlabel("separation (sensor spacings 2 pi / N)")
         conv = float(m.fail_convergence.mean())
-        what = "error or wrong K" if meth in SELECT else "error"
-        ax.set_title(f"{meth}: P({what}); non-converged {conv:.0%}", fontsize=10)
+        what = "error or wrong K" if label in SELECT else "error"
+        ax.set_title(f"{label}: P({what}); non-converged {conv:.0%}", fontsize=10)
         ax.invert_yaxis()  # high SNR on top
     axes[0].set_ylabel("SNR = I / sigma")
     axes[0].legend(fontsize=7, loc="lower right")
-    fig.colorbar(im, ax=axes[len(methods) - 1], fraction=0.05,
+    fig.colorbar(im, ax=axes[len(labels) - 1], fraction=0.05,
                  label="failure rate (error > 5 CRLB sd)")
     ax = axes[-1]
-    width = 0.8 / (2 * len(methods))
-    for i, meth in enumerate(methods):
+    width = 0.8 / (2 * len(labels))
+    for i, label in enumerate(labels):
         for j, kk in enumerate((False, True)):
-            y = kink.sel({"method": meth, "kink": kk}).fail_estimate.values
+            y = kink.sel({"estimator": label, "kink": kk}).fail_estimate.values
             xs = np.arange(len(kink.sigma)) + (2 * i + j) * width
             ax.bar(xs, y, width, color=f"C{i}", alpha=1.0 if kk else 0.45,
-                   label=f"{meth}{' on kink' if kk else ''}")
+                   label=f"{label}{' on kink' if kk else ''}")
             ax.plot(xs, y, "_", color=f"C{i}", ms=8)  # zero rates stay visible
     ax.set_xticks(np.arange(len(kink.sigma)) + 0.4, [f"SNR {1 / s:g}" for s in kink.sigma.values])
     ax.set_ylabel("failure rate")
@@ -123,47 +130,47 @@ def main() -> None:
     args = parser("stability", __doc__).parse_args()
     import xarray as xr
 
-    plan = FULL if args.full else QUICK
     maps, kinks = [], []
-    for j, (method, n) in enumerate(plan.items()):
-        fixed = {"n_sensors": N, "n_sources": 2, "intensity": 1.0, "select": method in SELECT}
-        ds = study(args, f"stab-{method}", ring_estimate,
-                   {"method": [method], "separation": [s * SPACING for s in SEPS],
+    for j, (est, n) in enumerate(FULL if args.full else QUICK):
+        fixed = {"n_sensors": N, "n_sources": 2, "intensity": 1.0,
+                 "select": est.label in SELECT}
+        ds = study(args, f"stab-{slug(est.label)}", ring_estimate,
+                   {"estimator": [est], "separation": [s * SPACING for s in SEPS],
                     "sigma": SIGMAS}, n, fixed=fixed, seed_offset=j)
         maps.append(rates(ds).assign_coords(separation=SEPS))
-        dk = study(args, f"stab-kink-{method}", ring_estimate,
-                   {"method": [method], "kink": [False, True], "sigma": [1e-3, 1e-2, 1e-1]},
+        dk = study(args, f"stab-kink-{slug(est.label)}", ring_estimate,
+                   {"estimator": [est], "kink": [False, True], "sigma": [1e-3, 1e-2, 1e-1]},
                    n, fixed={**fixed, "separation": 4 * SPACING}, seed_offset=100 + j)
         dk.attrs["separation"] = 4 * SPACING
         kinks.append(rates(dk))
         assert bool(dk["on_kink"].sel(kink=True).all()) and not bool(
             dk["on_kink"].sel(kink=False).any())
-    maps = xr.concat(maps, "method", data_vars="all")
-    kink = xr.concat(kinks, "method", data_vars="all")
+    maps = xr.concat(maps, "estimator", data_vars="all")
+    kink = xr.concat(kinks, "estimator", data_vars="all")
     rows = []
-    for meth in maps.method.values:
+    for label in maps.estimator.values:
         for sig in SIGMAS:
-            r = maps.sel({"method": meth, "sigma": sig})
-            rows.append([str(meth), f"{1 / sig:g}"] + [f"{v:.2f}" + ("*" if u else "")
+            r = maps.sel({"estimator": label, "sigma": sig})
+            rows.append([str(label), f"{1 / sig:g}"] + [f"{v:.2f}" + ("*" if u else "")
                         for v, u in zip(r.fail_estimate.values, r.unresolvable.values)])
     text = ("failure rate (error > 5 CRLB std or wrong K) vs separation in sensor spacings; "
             "* = Fisher singular in some trial\n"
-            + table(["method", "SNR"] + [f"{s:g}" for s in SEPS], rows))
+            + table(["estimator", "SNR"] + [f"{s:g}" for s in SEPS], rows))
     text += "\nnon-convergence over the whole map: " + ", ".join(
-        f"{m} {float(maps.sel({'method': m}).fail_convergence.mean()):.2f}"
-        for m in maps.method.values)
+        f"{m} {float(maps.sel({'estimator': m}).fail_convergence.mean()):.2f}"
+        for m in maps.estimator.values)
     text += "\nwrong K (select_k, Laplace; fast only) over the map: " + ", ".join(
-        f"{m} {float(maps.sel({'method': m}).fail_k.mean()):.2f}" for m in maps.method.values)
+        f"{m} {float(maps.sel({'estimator': m}).fail_k.mean()):.2f}" for m in maps.estimator.values)
     rows = []
-    for meth in kink.method.values:
+    for label in kink.estimator.values:
         for sig in kink.sigma.values:
             for kk in (False, True):
-                r = kink.sel({"method": meth, "sigma": sig, "kink": kk})
-                rows.append([str(meth), f"{1 / sig:g}", str(kk), float(r.fail_error),
+                r = kink.sel({"estimator": label, "sigma": sig, "kink": kk})
+                rows.append([str(label), f"{1 / sig:g}", str(kk), float(r.fail_error),
                              float(r.fail_error_ll_ge_truth), float(r.fail_convergence),
                              float(r.fail_k), float(r.fail_estimate), int(r.n)])
     text += "\n\nsource on the costn kink (separation 4 spacings)\n" + table(
-        ["method", "SNR", "kink", "error", "err&ll>=truth", "non-conv", "wrong K", "err|K", "n"],
+        ["estimator", "SNR", "kink", "error", "err&ll>=truth", "non-conv", "wrong K", "err|K", "n"],
         rows)
     print(text)
     both = xr.merge([

@@ -1,8 +1,8 @@
 """Throughput of ``run_study`` on one machine: serial vs a local pool vs Dask, in one run.
 
 The workload is ML trials (:func:`olsbayes.studies.estimators.ring_estimate`,
-method ``"fast"``: simulate a ring scene, fit it with ``fit_ml``, score it against
-the CRLB).  Measured side by side:
+estimator ``Estimator("fast")``: simulate a ring scene, fit it with ``fit_ml``,
+score it against the CRLB).  Measured side by side:
 
 * trials per second with ``executor="serial"``, a 2-worker local process pool
   and a 2-worker Dask ``LocalCluster`` (processes), each warm (executor started
@@ -15,12 +15,13 @@ the CRLB).  Measured side by side:
   the best ratio 2 idle cores would allow;
 * the same with the executor started inside ``run_study`` (cold);
 * the runner's own cost per trial (seeds, chunk bookkeeping, stacking, the
-  Dataset) next to a batched ML fit: ``run_study`` of ``fast_batched`` trials
-  vs calling the trial function on the same rngs directly, and a no-op trial.
+  Dataset) next to a batched ML fit: ``run_study`` of ``Estimator("fast",
+  batched=True)`` trials vs calling the trial function on the same rngs
+  directly, and a no-op trial.
 
 Usage::
 
-    python benchmarks/study_throughput.py            # quick (~1 min)
+    python benchmarks/study_throughput.py            # quick
     python benchmarks/study_throughput.py --full     # more trials
 """
 
@@ -35,15 +36,18 @@ from pathlib import Path
 
 import numpy as np
 
-from olsbayes.studies import run_study, vectorized
+from olsbayes.studies import Estimator, run_study, vectorized
 from olsbayes.studies.estimators import ring_estimate
 from olsbayes.studies.seeds import trial_rngs
 
+__all__ = ["main"]
+
 SETTINGS = {"n_sensors": 16, "sigma": 0.01, "n_sources": 2}
+FAST, BATCHED = Estimator("fast"), Estimator("fast", batched=True)
 
 
 @vectorized
-def noop(settings, rngs):
+def noop(settings, *, rngs):
     """A trial that does nothing: the runner's own cost."""
     return {"x": np.zeros(len(rngs))}
 
@@ -54,8 +58,8 @@ def timed(fn) -> float:
     return time.perf_counter() - t0
 
 
-def study(executor, n, method="fast", trial=ring_estimate, chunk_size=None, **kw):
-    return run_study(trial, {"method": [method]}, n, fixed=SETTINGS, executor=executor,
+def study(executor, n, estimator=FAST, trial=ring_estimate, chunk_size=None, **kw):
+    return run_study(trial, {"estimator": [estimator]}, n, fixed=SETTINGS, executor=executor,
                      rng=1, chunk_size=chunk_size, progress=False, **kw)
 
 
@@ -89,7 +93,7 @@ def measured(fn, worker_cpu) -> tuple[float, float, float]:
 
 def _warm_one(_: int = 0) -> int:
     """Run one ML trial (imports the estimator stack); return the worker's pid."""
-    ring_estimate({**SETTINGS, "method": "fast"}, trial_rngs(9, 0, np.arange(1)))
+    ring_estimate({**SETTINGS, "estimator": FAST}, rngs=trial_rngs(9, 0, np.arange(1)))
     return os.getpid()
 
 
@@ -141,10 +145,10 @@ def throughput(n: int, repeats: int) -> tuple[dict, list, dict]:
 
 
 def overhead(n: int, repeats: int) -> dict:
-    settings = {**SETTINGS, "method": "fast_batched"}
+    settings = {**SETTINGS, "estimator": BATCHED}
     rngs = lambda: trial_rngs(1, 0, np.arange(n))  # noqa: E731
-    direct = min(timed(lambda: ring_estimate(settings, rngs())) for _ in range(repeats))
-    runner = min(timed(lambda: study("serial", n, "fast_batched", chunk_size=n))
+    direct = min(timed(lambda: ring_estimate(settings, rngs=rngs())) for _ in range(repeats))
+    runner = min(timed(lambda: study("serial", n, BATCHED, chunk_size=n))
                  for _ in range(repeats))
     rng_only = min(timed(rngs) for _ in range(repeats))
     nothing = min(timed(lambda: study("serial", n, trial=noop, chunk_size=50))
@@ -165,7 +169,7 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     rates, rounds, per_task = throughput(n, reps)
     ov = overhead(2000 if args.full else 500, 3)
-    lines = [f"ML trials ({SETTINGS}, method fast), {n} trials, best of {reps}:"]
+    lines = [f"ML trials ({SETTINGS}, estimator fast), {n} trials, best of {reps}:"]
     lines += [f"  {k:<22s} {v:8.1f} trials/s" for k, v in rates.items()]
     lines += [
         f"  ratio processes(2)/serial (warm) = "

@@ -44,7 +44,7 @@ def test_one_dim_source_matches_quadrature():
     rng = np.random.default_rng(3)
     truth = np.array([0.7, 0.03])
     data = MODEL.simulate(truth, rng)
-    draws, w = exact_ring_posterior(MODEL, data, 1, I_MAX, rng, ngrid=1024, per_cell=8)
+    draws, w = exact_ring_posterior(MODEL, data, 1, I_MAX, rng=rng, n_grid=1024, per_cell=8)
     axes = [np.linspace(-np.pi, np.pi, 2000, endpoint=False), np.linspace(0.0005, 0.5995, 600)]
     p = _grid_posterior(data, axes)
     assert np.all((draws[w > 0, 1] >= 0) & (draws[w > 0, 1] <= I_MAX))
@@ -61,7 +61,7 @@ def test_two_sources_match_quadrature():
     rng = np.random.default_rng(1)
     truth = np.array([0.0, 1.0, 0.6, 0.8])
     data = MODEL.simulate(truth, rng)
-    draws, w = exact_ring_posterior(MODEL, data, 2, I_MAX, rng, ngrid=512, per_cell=16)
+    draws, w = exact_ring_posterior(MODEL, data, 2, I_MAX, rng=rng, n_grid=512, per_cell=16)
     mean = w @ draws
     sd = np.sqrt(w @ (draws - mean) ** 2)
     assert np.all((draws[w > 0][:, 1::2] >= 0) & (draws[w > 0][:, 1::2] <= I_MAX))
@@ -76,9 +76,9 @@ def test_two_sources_match_quadrature():
 
 def test_sbc_exact_is_calibrated():
     """CDF of the truth under the exact posterior is uniform: 90 % coverage within 3 se."""
-    settings = {"n_sensors": 16, "sigma": 0.05, "n_sources": 2, "i_max": I_MAX, "ngrid": 192}
+    settings = {"n_sensors": 16, "sigma": 0.05, "n_sources": 2, "i_max": I_MAX, "n_grid": 192}
     seeds = np.random.SeedSequence(11).spawn(100)
-    cdf = np.array([sbc_exact(settings, np.random.default_rng(s))["cdf"] for s in seeds])
+    cdf = np.array([sbc_exact(settings, rng=np.random.default_rng(s))["cdf"] for s in seeds])
     cover = np.mean((cdf > 0.05) & (cdf < 0.95), axis=0)
     assert np.all(np.abs(cover - 0.9) < 3 * np.sqrt(0.09 / len(seeds))), cover
 

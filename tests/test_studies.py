@@ -144,7 +144,7 @@ def test_bad_inputs_are_refused_with_the_argument_named(tmp_path):
         with pytest.raises(InputError, match=message):
             run_study(**kw)
     with pytest.raises(InputError, match="cannot be sent to processes workers"):
-        run_study(lambda s, r: {"x": 1.0}, {}, 2, executor="processes", workers=1,
+        run_study(lambda settings, rng: {"x": 1.0}, {}, 2, executor="processes", workers=1,
                   progress=False)
     for fn, message in [(returns_list, "non-empty dict"), (returns_text, "numbers or bools"),
                         (ragged, "fixed shape"), (short_batch, "leading axis 4")]:
@@ -223,7 +223,7 @@ SCRIPT = textwrap.dedent(
 
     def slow_trial(settings, rng):
         time.sleep(0.03)
-        return noise_check(settings, rng)
+        return noise_check(settings, rng=rng)
 
     if __name__ == "__main__":
         ckpt = None if sys.argv[1] == "-" else sys.argv[1]
@@ -361,24 +361,6 @@ def test_scores_match_exchangeable_sources_and_the_crlb():
     assert s["resolvable"].all() and not s["on_kink"].any()
 
 
-def test_batched_ml_trials_do_not_depend_on_chunking():
-    from olsbayes.studies.estimators import ring_estimate
-
-    grid = {"method": ["fast_batched"], "n_sources": [1, 2]}
-    fixed = {"n_sensors": 12, "sigma": 0.02}
-    a, b = (run_study(ring_estimate, grid, 12, fixed=fixed, executor="serial", rng=4,
-                      chunk_size=c, progress=False) for c in (12, 5))
-    for v in ("dir_err_rms", "dir_z2", "max_z", "k_hat", "resolvable"):
-        np.testing.assert_allclose(a[v], b[v], rtol=1e-7, atol=1e-12)
-    # an efficient estimator: mean (error / CRLB)^2 ~ 1, within 5 standard errors
-    # (z2 of one direction is ~ chi2_1: sd sqrt(2) per trial, 12 trials per cell)
-    z2 = a["dir_z2"].sel(n_sources=1).values
-    assert abs(z2.mean() - 1) < 5 * np.sqrt(2 / z2.size)
-    with pytest.raises(InputError, match="method must be"):
-        ring_estimate({"method": "multistart_x", "n_sensors": 8, "sigma": 0.1},
-                      [np.random.default_rng(0)])
-
-
 def test_rank_statistics_are_uniform_for_an_exact_posterior():
     from olsbayes.studies.sbc import N_DRAWS, rank_test, ranks_of
 
@@ -387,21 +369,9 @@ def test_rank_statistics_are_uniform_for_an_exact_posterior():
     y = mu + rng.normal(size=400)
     ranks = np.array([ranks_of(np.array([m]), (yy / 2 + np.sqrt(0.5) * rng.normal(
         size=(N_DRAWS, 1)))) for m, yy in zip(mu, y)])[:, 0]
-    good = rank_test(ranks, N_DRAWS, 10, rng)
+    good = rank_test(ranks, N_DRAWS, 10, rng=rng)
     assert good.counts.sum() == 400 and good.p_value > 1e-3 and good.ks_p_value > 1e-3
     # an overconfident posterior (sd halved) gives a U-shaped, rejected histogram
     bad = np.array([ranks_of(np.array([m]), (yy / 2 + 0.35 * rng.normal(size=(N_DRAWS, 1))))
                     for m, yy in zip(mu, y)])[:, 0]
-    assert rank_test(bad, N_DRAWS, 10, rng).p_value < 1e-3
-
-
-def test_exact_estimator_in_ring_studies():
-    from olsbayes.studies.estimators import parse_method, ring_estimate
-
-    assert parse_method("exact") == ("exact", 0)
-    with pytest.raises(InputError, match="'exact'"):
-        parse_method("exact_3")
-    settings = {"n_sensors": 30, "sigma": 1e-2, "n_sources": 2, "method": "exact"}
-    out = ring_estimate(settings, [np.random.default_rng(s) for s in range(3)])
-    assert np.all(np.asarray(out["converged"]))
-    assert np.all(np.asarray(out["ll_gain"]) >= -1e-9)  # the global optimum beats the truth
+    assert rank_test(bad, N_DRAWS, 10, rng=rng).p_value < 1e-3

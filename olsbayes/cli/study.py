@@ -1,9 +1,14 @@
 """Run a Monte Carlo study described by a TOML file, locally or on a Dask cluster.
 
 The file holds a [study] table (what to run and where), a [grid] table (setting
-axes: lists of numbers, strings or bools) and an optional [fixed] table
+axes: lists of numbers, strings, bools or tables) and an optional [fixed] table
 (settings shared by every cell).  The default trial, ring_estimate, simulates a
-ring scene, estimates it with the grid's `method` and scores it against the CRLB.
+ring scene, estimates it with the setting `estimator` and scores it against the
+CRLB.  An estimator is a table {name = ..., option = value} (listed at the end of
+`olsbayes study --help`); a name alone ("fast", "exact", "nested") stands for its
+table with the default options.  The result's `estimator` coordinate holds
+canonical labels such as "multistart(n_starts=5)".  Unknown estimators, options
+and settings are refused before any trial runs.
 
   [study]
   trial = "ring_estimate"        # or noise_check, or "package.module:function"
@@ -15,7 +20,7 @@ ring scene, estimates it with the grid's `method` and scores it against the CRLB
   workers = 2
 
   [grid]
-  method = ["fast", "multistart_5"]
+  estimator = [{name = "fast"}, {name = "multistart", n_starts = 5}]
   sigma = [0.001, 0.01, 0.1]
   n_sources = [1, 2]
 
@@ -38,10 +43,10 @@ from typing import Any
 
 from ..config import Field, Section, parse_config, register_section
 from ..errors import ConfigError, InputError
-from ..studies import EXECUTORS, run_study
+from ..studies import ESTIMATORS, EXECUTORS, run_study
 from ._common import _parse_override, add_command, add_json_arg, emit, format_table
 
-__all__ = ["register", "run", "load_study_config", "BUILTIN_TRIALS"]
+__all__ = ["register", "run", "load_study_config", "estimator_help", "BUILTIN_TRIALS"]
 
 #: Trial functions accepted by name in [study] trial.
 BUILTIN_TRIALS = {
@@ -70,9 +75,20 @@ STUDY_SECTION = register_section(Section(
 _TABLES = ("study", "grid", "fixed")
 
 
+def estimator_help() -> str:
+    """The estimators of ring_estimate and their options, one line per option."""
+    lines = ["Estimators of ring_estimate ({name = ..., option = value}):"]
+    for name, options in ESTIMATORS.items():
+        if not options:
+            lines.append(f"  {name:<11s} no options")
+        for i, (key, opt) in enumerate(options.items()):
+            lines.append(f"  {name if i == 0 else '':<11s} {key} ({opt.describe()}): {opt.doc}")
+    return "\n".join(lines)
+
+
 def register(subparsers: Any) -> None:
     p = add_command(subparsers, "study", help="run a Monte Carlo study (local pool or Dask)",
-                    description=__doc__)
+                    description=f"{__doc__}\n{estimator_help()}")
     p.add_argument("config", metavar="CONFIG", help="TOML file with [study], [grid], [fixed]")
     p.add_argument("--set", dest="overrides", action="append", default=[],
                    metavar="SECTION.KEY=VALUE", help="override one value (TOML syntax)")

@@ -10,12 +10,14 @@ Executor), :mod:`~olsbayes.studies.checkpoint` (append-only checkpoint),
 :mod:`~olsbayes.studies.grid` (settings grids); ready-made trials in
 :mod:`~olsbayes.studies.trials` (noise checks), :mod:`~olsbayes.studies.estimators`
 (``ring_estimate``: ML / posterior / nested sampling scored against the CRLB,
-see :mod:`~olsbayes.studies.scoring`) and :mod:`~olsbayes.studies.sbc`
-(simulation-based calibration).
+see :mod:`~olsbayes.studies.scoring`; the estimator is an
+:class:`~olsbayes.studies.estimator_spec.Estimator`, a name plus its options)
+and :mod:`~olsbayes.studies.sbc` (simulation-based calibration).
 """
 
-from ._work import vectorized
+from ._work import trial_settings, vectorized
 from .checkpoint import Checkpoint
+from .estimator_spec import ESTIMATORS, Estimator, as_estimator
 from .executors import EXECUTORS, make_backend
 from .runner import run_study, trial_name
 from .seeds import study_entropy, trial_seed
@@ -23,6 +25,10 @@ from .seeds import study_entropy, trial_seed
 __all__ = [
     "run_study",
     "vectorized",
+    "trial_settings",
+    "Estimator",
+    "as_estimator",
+    "ESTIMATORS",
     "Checkpoint",
     "make_backend",
     "EXECUTORS",

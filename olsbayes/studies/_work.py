@@ -1,21 +1,39 @@
-"""The task a worker runs: one chunk of trials of one grid cell."""
+"""The task a worker runs (one chunk of trials of one grid cell) and how trials declare themselves.
+
+A trial is called as ``trial(settings, rng=generator)``, or, marked with
+:func:`vectorized`, as ``trial(settings, rngs=[generator, ...])`` for a chunk.
+:func:`trial_settings` declares which settings a trial reads and how some of
+them are parsed, so that :func:`~olsbayes.studies.run_study` can refuse unknown
+settings and bad values before any trial runs.
+"""
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Mapping
+from types import MappingProxyType
 
 import numpy as np
 
 from ..errors import InputError
 from .seeds import trial_rngs
 
-__all__ = ["run_chunk", "vectorized", "is_vectorized", "stack_outputs"]
+__all__ = [
+    "run_chunk",
+    "vectorized",
+    "is_vectorized",
+    "trial_settings",
+    "declared_settings",
+    "check_signature",
+    "stack_outputs",
+]
 
 _FLAG = "olsbayes_vectorized"
+_SETTINGS = "olsbayes_settings"
 
 
 def vectorized(fn: Callable) -> Callable:
-    """Mark ``fn(settings, rngs)`` as a vectorised trial function.
+    """Mark ``fn(settings, *, rngs)`` as a vectorised trial function.
 
     It receives a list of T Generators (one per trial, in trial order) and returns
     ``{name: array of shape (T, ...)}``.  Trial i must draw only from ``rngs[i]``
@@ -29,6 +47,54 @@ def vectorized(fn: Callable) -> Callable:
 def is_vectorized(fn: Callable) -> bool:
     """True for functions marked with :func:`vectorized`."""
     return bool(getattr(fn, _FLAG, False))
+
+
+def trial_settings(*names: str, **parsers: Callable[[object, str], object]) -> Callable:
+    """Declare the settings a trial reads; :func:`~olsbayes.studies.run_study` refuses others.
+
+    Parameters
+    ----------
+    *names : str
+        Settings read as plain numbers, strings or bools.
+    **parsers : callable
+        Settings with a parser ``parser(value, where) -> value`` that validates a
+        grid or fixed value (``where`` names it in errors, e.g.
+        ``"grid['estimator'][1]"``) and returns a scalar or a record with a
+        canonical ``label`` and ``to_json()``, such as
+        :func:`~olsbayes.studies.estimator_spec.as_estimator`.
+
+    Returns
+    -------
+    callable
+        A decorator that records the declaration on the function and returns it.
+    """
+    declared = (frozenset(names) | frozenset(parsers), MappingProxyType(dict(parsers)))
+
+    def mark(fn: Callable) -> Callable:
+        setattr(fn, _SETTINGS, declared)
+        return fn
+
+    return mark
+
+
+def declared_settings(fn: Callable) -> tuple[frozenset[str] | None, Mapping[str, Callable]]:
+    """(accepted setting names or None when undeclared, parsers) of a trial."""
+    return getattr(fn, _SETTINGS, (None, MappingProxyType({})))
+
+
+def check_signature(trial: Callable, name: str) -> None:
+    """Refuse a trial that cannot be called as ``trial(settings, rng=...)`` (``rngs=``
+    for vectorised trials), before any trial runs."""
+    keyword = "rngs" if is_vectorized(trial) else "rng"
+    try:
+        sig = inspect.signature(trial)
+    except (TypeError, ValueError):  # no signature to read (some builtins): try at run time
+        return
+    try:
+        sig.bind({}, **{keyword: None})
+    except TypeError:
+        raise InputError(f"trial {name} must accept (settings, *, {keyword}); "
+                         f"its signature is {sig}") from None
 
 
 def _as_numeric(name: str, value: object) -> np.ndarray:
@@ -72,7 +138,7 @@ def run_chunk(
     """Run trials ``trials`` of cell ``cell``; return (cell, trials, {name: (T, ...)})."""
     rngs = trial_rngs(entropy, cell, trials)
     if is_vectorized(trial):
-        out = trial(dict(settings), rngs)
+        out = trial(dict(settings), rngs=rngs)
         if not isinstance(out, Mapping) or not out:
             raise InputError(f"a vectorised trial function must return a non-empty dict of "
                              f"arrays; got {type(out).__name__}")
@@ -86,4 +152,4 @@ def run_chunk(
                 )
             values[str(name)] = arr
         return cell, trials, values
-    return cell, trials, stack_outputs([trial(dict(settings), r) for r in rngs])
+    return cell, trials, stack_outputs([trial(dict(settings), rng=r) for r in rngs])

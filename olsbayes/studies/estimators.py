@@ -1,24 +1,23 @@
-"""Trial functions that run the package's estimators on simulated ring scenes.
+"""A trial that runs one of the package's estimators on simulated ring scenes.
 
 :func:`ring_estimate` is one vectorised trial for every estimator, chosen by the
-``method`` setting, so a single study can sweep methods as a grid axis:
+``estimator`` setting (an :class:`~olsbayes.studies.estimator_spec.Estimator`:
+a name plus its options), so a single study can sweep estimators as a grid axis::
 
-==================  ==========================================================
-``"fast"``          :func:`olsbayes.ml.fit_ml` fast method, one fit per trial
-``"fast_batched"``  the same, all trials of the chunk in one batched call
-``"multistart_M"``  the paper's multistart baseline with M random starts
-``"exact"``         the global ML optimum by enumeration (clipped cosine, K <= 4)
-``"posterior_L"``   posterior mean of an emcee run of exactly L steps
-``"nested"``        posterior mean from dynesty (``maxcall`` cap, default 20000)
-==================  ==========================================================
+    run_study(ring_estimate,
+              {"estimator": [Estimator("fast"), Estimator("multistart", n_starts=5)],
+               "sigma": [1e-3, 1e-2]},
+              n_trials=200, fixed={"n_sensors": 16, "n_sources": 2}, rng=1)
 
-Settings: ``n_sensors``, ``sigma``, ``n_sources`` and those of
+The dataset's ``estimator`` coordinate holds the canonical labels, e.g.
+``"multistart(n_starts=5)"``.  Settings: ``n_sensors``, ``sigma``, ``n_sources``,
+``estimator`` (default ``"fast"``) and those of
 :func:`olsbayes.studies.scoring.ring_truth`; optionally ``i_max`` (intensity
-prior bound of the Bayesian methods, default 3 * intensity), ``maxcall``,
-``n_walkers`` and ``select`` (also choose K with :func:`~olsbayes.select.select_k`,
-method "laplace", reporting ``k_hat``).  Every trial draws only from its own
-Generator (the scene, its noise, then the method's randomness), so results do
-not depend on chunking.
+prior bound of the Bayesian estimators and of ``select``, default 3 * intensity)
+and ``select`` (also choose K with :func:`~olsbayes.select.select_k`, method
+"laplace", reporting ``k_hat``).  Every trial draws only from its own Generator
+(the scene, its noise, then the estimator's randomness), so results do not
+depend on chunking.
 """
 
 from __future__ import annotations
@@ -28,40 +27,28 @@ import warnings
 
 import numpy as np
 
-from ..errors import InputError, OlsBayesWarning
+from ..errors import OlsBayesWarning
 from ..exchange import match_sources
 from ..geometry import Ring
 from ..model import Model
-from ._work import vectorized
+from ._work import trial_settings, vectorized
+from .estimator_spec import Estimator, as_estimator
 from .scoring import ring_truth, score
 
-__all__ = ["ring_estimate", "parse_method", "OUTPUT_NAMES"]
+__all__ = ["ring_estimate", "OUTPUT_NAMES"]
 
 #: Output names of :func:`ring_estimate` besides the scores.
 OUTPUT_NAMES = ("ll_gain", "seconds", "cpu_seconds", "converged", "n_evaluations", "k_hat")
 
 
-def parse_method(method: str) -> tuple[str, int]:
-    """Split ``"multistart_5"`` into ``("multistart", 5)``; plain names give 0."""
-    name, _, num = str(method).partition("_")
-    if name == "fast" and num in ("", "batched"):
-        return ("fast_batched" if num else "fast"), 0
-    if name in ("multistart", "posterior") and num.isdigit() and int(num) > 0:
-        return name, int(num)
-    if name in ("nested", "exact") and not num:
-        return name, 0
-    raise InputError(
-        "method must be 'fast', 'fast_batched', 'multistart_M', 'exact', 'posterior_L' or "
-        "'nested' "
-        f"(M, L positive integers); got {method!r}"
-    )
+def _i_max(settings: dict) -> float:
+    return float(settings.get("i_max", 3.0 * float(settings.get("intensity", 1.0))))
 
 
 def _priors(model: Model, settings: dict, k: int):
     from ..priors import default_priors
 
-    i_max = float(settings.get("i_max", 3.0 * float(settings.get("intensity", 1.0))))
-    return default_priors(model, k, i_max=i_max)
+    return default_priors(model, k, i_max=_i_max(settings))
 
 
 def _circular_mean(model: Model, draws: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -74,118 +61,159 @@ def _circular_mean(model: Model, draws: np.ndarray, weights: np.ndarray) -> np.n
     return mean.ravel()
 
 
-def _nested(model: Model, data: np.ndarray, k: int, settings: dict, rng) -> tuple:
+def _one_fit(model: Model, data: np.ndarray, k: int, est: Estimator, rng) -> tuple:
+    """The ML estimators ("fast", "multistart", "exact"): the one place that calls fit_ml.
+
+    ``data`` is (N,) or, for the batched fast fit, (T, N).  Returns the fit's
+    ``params``, ``converged`` and ``n_evaluations``.
+    """
+    from ..ml import MultistartOptions, fit_ml
+
+    if est.name == "multistart":
+        opts = MultistartOptions(n_starts=est.option("n_starts"))
+        r = fit_ml(model, data, k, "multistart", options=opts, rng=rng, warn=False)
+    else:
+        r = fit_ml(model, data, k, est.name, warn=False)
+    return r.params, r.converged, r.n_evaluations
+
+
+def _posterior(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,
+               rng) -> tuple:
+    """The posterior mean of an emcee run of exactly ``n_steps`` steps."""
+    from ..posterior import sample
+
+    steps = est.option("n_steps")
+    res = sample(model, data, k, priors=_priors(model, settings, k), rng=rng, progress=False,
+                 max_steps=steps, tau_multiple=1e9, check_every=steps,
+                 n_walkers=est.option("n_walkers"))
+    # a fixed chain length is the point here: report it in autocorrelation times
+    return res.estimate, res.n_steps >= 50 * float(np.max(res.tau)), res.n_evaluations
+
+
+def _nested(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,
+            rng) -> tuple:
+    """The posterior mean of a dynesty run capped at ``max_calls`` likelihood calls."""
     from ..select import nested_log_evidence
 
     prior = _priors(model, settings, k)
     res = nested_log_evidence(lambda x: float(model.log_likelihood(x, data)), prior.ppf,
                               prior.n_params, periodic=list(range(0, 2 * k, 2)), rng=rng,
-                              maxcall=int(settings.get("maxcall", 20000)))
+                              maxcall=est.option("max_calls"))
     best = res.samples[np.argmax(res.log_weights)]
     relab = match_sources(model, res.samples, np.broadcast_to(best, res.samples.shape))
-    est = _circular_mean(model, relab, np.exp(res.log_weights))
-    return est, res.converged, res.n_calls
+    return _circular_mean(model, relab, np.exp(res.log_weights)), res.converged, res.n_calls
 
 
-def _posterior(model: Model, data: np.ndarray, k: int, steps: int, settings: dict, rng) -> tuple:
-    from ..posterior import sample
+def _estimate(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,
+              rng) -> tuple:
+    """One estimate (P,) of ``data`` (N,): (params, converged, n_evaluations)."""
+    if est.name == "posterior":
+        return _posterior(model, data, k, est, settings, rng)
+    if est.name == "nested":
+        return _nested(model, data, k, est, settings, rng)
+    params, converged, n_evaluations = _one_fit(model, data, k, est, rng)
+    return params, bool(converged), int(n_evaluations)
 
-    res = sample(model, data, k, priors=_priors(model, settings, k), rng=rng, progress=False,
-                 max_steps=steps, tau_multiple=1e9, check_every=steps,
-                 n_walkers=settings.get("n_walkers"))
-    # a fixed chain length is the point here: report it in autocorrelation times
-    return res.estimate, res.n_steps >= 50 * float(np.max(res.tau)), res.n_evaluations
+
+def _cheap(est: Estimator) -> Estimator:
+    """A cheap run of the same code: one fit, at most 20 starts or steps, 1000 calls."""
+    if est.name == "fast":
+        return est.replace(batched=False)
+    if est.name == "multistart":
+        return est.replace(n_starts=min(est.option("n_starts"), 20))
+    if est.name == "posterior":
+        return est.replace(n_steps=min(est.option("n_steps"), 20))
+    if est.name == "nested":
+        return est.replace(max_calls=1000)
+    return est
 
 
 _WARMED: set[str] = set()
 
 
-def _warm_up(model: Model, k: int, method: str, num: int, settings: dict) -> None:
-    """Run ``method`` once per process, untimed, on a fixed noiseless scene.
+def _warm_up(model: Model, k: int, est: Estimator, settings: dict) -> None:
+    """Run a cheap version of the estimator once per process, untimed, on a noiseless scene.
 
-    A worker's first call of a method pays one-off costs -- imports (emcee,
-    arviz, dynesty) and lazy set-up inside xarray and scipy, seconds on a busy
-    machine -- that would otherwise be charged to the first trial's ``seconds``.
-    Uses its own Generator, so no trial's random stream is touched.
+    A worker's first call of an estimator pays one-off costs -- imports (emcee,
+    arviz, dynesty) and lazy set-up inside xarray and scipy -- that would
+    otherwise be charged to the first trial's ``seconds``.  Uses its own
+    Generator, so no trial's random stream is touched.
     """
-    if method in _WARMED:
+    if est.name in _WARMED:
         return
     rng = np.random.default_rng(0)
-    truth = ring_truth(model, settings, rng)
-    cheap = {**settings, "maxcall": 1000}
-    single = "fast" if method == "fast_batched" else method
-    _one_fit(model, model.response(truth), k, single, min(num, 20), cheap, rng)
-    _WARMED.add(method)
-
-
-def _one_fit(model: Model, data: np.ndarray, k: int, method: str, num: int, settings: dict,
-             rng) -> tuple:
-    from ..ml import MultistartOptions, fit_ml
-
-    if method in ("fast", "exact"):
-        r = fit_ml(model, data, k, method, warn=False)
-        return r.params, bool(r.converged), int(r.n_evaluations)
-    if method == "multistart":
-        r = fit_ml(model, data, k, "multistart", options=MultistartOptions(n_starts=num),
-                   rng=rng, warn=False)
-        return r.params, bool(r.converged), int(r.n_evaluations)
-    if method == "posterior":
-        return _posterior(model, data, k, num, settings, rng)
-    return _nested(model, data, k, settings, rng)
+    truth = ring_truth(model, settings, rng=rng)
+    _estimate(model, model.response(truth), k, _cheap(est), settings, rng)
+    _WARMED.add(est.name)
 
 
 def _select(model: Model, data: np.ndarray, k: int, settings: dict, rng) -> int:
     from ..select import select_k
 
-    i_max = float(settings.get("i_max", 3.0 * float(settings.get("intensity", 1.0))))
     k_max = min(k + 1, (model.n_sensors - 1) // 2)
     return int(select_k(model, data, k_max=k_max, method="laplace", rng=rng,
-                        i_max=i_max).best)
+                        i_max=_i_max(settings)).best)
+
+
+def _timed_estimates(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,
+                     rngs: list) -> tuple:
+    """Estimates (T, P) of ``data`` (T, N), converged (T,), n_evaluations (T,), wall and
+    CPU seconds per estimate (T,)."""
+    t = len(rngs)
+    params = np.empty((t, 2 * k))
+    conv, nev = np.zeros(t, bool), np.zeros(t, np.int64)
+    secs, cpu = np.zeros(t), np.zeros(t)
+    if est.name == "fast" and est.option("batched"):
+        t0, c0 = time.perf_counter(), time.process_time()
+        params[:], conv[:], nev[:] = _one_fit(model, data, k, est, None)
+        secs[:], cpu[:] = (time.perf_counter() - t0) / t, (time.process_time() - c0) / t
+        return params, conv, nev, secs, cpu
+    for i, r in enumerate(rngs):
+        t0, c0 = time.perf_counter(), time.process_time()
+        params[i], conv[i], nev[i] = _estimate(model, data[i], k, est, settings, r)
+        secs[i], cpu[i] = time.perf_counter() - t0, time.process_time() - c0
+    return params, conv, nev, secs, cpu
 
 
 @vectorized
-def ring_estimate(settings: dict, rngs: list[np.random.Generator]) -> dict:
-    """Simulate one ring scene per rng, estimate it with ``settings["method"]``, score it.
+@trial_settings("n_sensors", "sigma", "n_sources", "intensity", "separation", "slots", "kink",
+                "i_max", "select", estimator=as_estimator)
+def ring_estimate(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
+    """Simulate one ring scene per rng, estimate it with ``settings["estimator"]``, score it.
+
+    Parameters
+    ----------
+    settings : dict
+        See the module docstring; ``estimator`` is an
+        :class:`~olsbayes.studies.estimator_spec.Estimator` or any spelling that
+        :func:`~olsbayes.studies.estimator_spec.as_estimator` accepts.
+    rngs : list of Generator
+        One per trial.
 
     Returns
     -------
     dict of ndarray (T,)
         The scores of :func:`olsbayes.studies.scoring.score` plus ``seconds``
-        (wall time per estimate; for ``fast_batched`` the batch time / T),
+        (wall time per estimate; for the batched fast fit the batch time / T),
         ``cpu_seconds`` (the same in CPU time of this process: unlike wall time,
         not inflated when other processes share the cores), ``converged``,
         ``n_evaluations``, ``k_hat`` (-1 unless ``select``) and ``ll_gain``,
         log-likelihood of the estimate minus that of the truth.
     """
-    method, num = parse_method(settings.get("method", "fast"))
+    est = as_estimator(settings.get("estimator", "fast"), "settings['estimator']")
     model = Model(Ring(int(settings["n_sensors"])), float(settings["sigma"]))
     k = int(settings.get("n_sources", 1))
-    t = len(rngs)
-    truth = np.stack([ring_truth(model, settings, r) for r in rngs])
+    truth = np.stack([ring_truth(model, settings, rng=r) for r in rngs])
     data = np.stack([model.simulate(x, r) for x, r in zip(truth, rngs)])
-    est = np.empty_like(truth)
-    conv, nev = np.zeros(t, bool), np.zeros(t, np.int64)
-    secs, cpu = np.zeros(t), np.zeros(t)
-    k_hat = np.full(t, -1, np.int64)
+    k_hat = np.full(len(rngs), -1, np.int64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)  # recorded as flags instead
-        _warm_up(model, k, method, num, settings)
-        if method == "fast_batched":
-            from ..ml import fit_ml
-
-            t0, c0 = time.perf_counter(), time.process_time()
-            r = fit_ml(model, data, k, "fast", warn=False)
-            secs[:], cpu[:] = (time.perf_counter() - t0) / t, (time.process_time() - c0) / t
-            est[:], conv[:], nev[:] = r.params, r.converged, r.n_evaluations
-        else:
-            for i, r in enumerate(rngs):
-                t0, c0 = time.perf_counter(), time.process_time()
-                est[i], conv[i], nev[i] = _one_fit(model, data[i], k, method, num, settings, r)
-                secs[i], cpu[i] = time.perf_counter() - t0, time.process_time() - c0
+        _warm_up(model, k, est, settings)
+        params, conv, nev, secs, cpu = _timed_estimates(model, data, k, est, settings, rngs)
         if settings.get("select", False):
             k_hat[:] = [_select(model, d, k, settings, r) for d, r in zip(data, rngs)]
     # > 0: the estimate explains the data at least as well as the truth, so a large
     # error is the problem's ambiguity rather than the estimator's failure
-    ll_gain = model.log_likelihood(est, data) - model.log_likelihood(truth, data)
-    return {**score(model, est, truth), "ll_gain": ll_gain, "seconds": secs,
+    ll_gain = model.log_likelihood(params, data) - model.log_likelihood(truth, data)
+    return {**score(model, params, truth), "ll_gain": ll_gain, "seconds": secs,
             "cpu_seconds": cpu, "converged": conv, "n_evaluations": nev, "k_hat": k_hat}

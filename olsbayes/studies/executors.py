@@ -50,8 +50,8 @@ class Backend:
         Parallel slots (used to size chunks and the in-flight window).
     chunks_per_worker : int
         Default number of chunks per slot: fewer, larger chunks where a task costs
-        more to dispatch (Dask: ~5 ms per task on one machine against ~0.3 ms for a
-        local process pool, measured in benchmarks/study_throughput.py).
+        more to dispatch (a Dask task costs more than a local pool's;
+        ``benchmarks/study_throughput.py`` measures both).
     """
 
     def __init__(self, name: str, n_workers: int, submit: Callable, kind: str,

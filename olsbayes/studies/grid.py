@@ -1,29 +1,60 @@
-"""Settings grids: validation, the cartesian cells, and a study's fingerprint."""
+"""Settings grids: validation, the cartesian cells, and a study's fingerprint.
+
+A setting value is a plain scalar (number, string or bool) or a *record*: an
+immutable, hashable object with a canonical ``label`` (the dataset coordinate)
+and a ``to_json()`` form (the fingerprint), such as
+:class:`~olsbayes.studies.estimator_spec.Estimator`.  A trial turns other
+spellings into records through the parsers it declares with
+:func:`~olsbayes.studies.trial_settings`.
+"""
 
 from __future__ import annotations
 
 import itertools
 import json
 import numbers
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from .._validation import _short
 from ..errors import InputError
 
-__all__ = ["Grid", "make_grid", "check_fixed", "RESERVED"]
+__all__ = [
+    "Grid",
+    "SettingRecord",
+    "make_grid",
+    "check_fixed",
+    "check_known",
+    "settings_json",
+    "RESERVED",
+]
 
 #: Names a grid axis or a fixed setting may not take (dataset dimensions).
 RESERVED = ("trial",)
 
+Parsers = Mapping[str, Callable[[object, str], object]]
 
-def _scalar(name: str, value: object) -> int | float | str | bool:
-    """A plain Python scalar usable as a coordinate and in JSON."""
+
+@runtime_checkable
+class SettingRecord(Protocol):
+    """A setting value other than a scalar: frozen, hashable, picklable, labelled."""
+
+    @property
+    def label(self) -> str:
+        """Canonical text, equal for equal records (the dataset coordinate)."""
+
+    def to_json(self) -> Any:
+        """JSON form (part of the study's fingerprint)."""
+
+
+def _scalar(name: str, value: object) -> Any:
+    """A plain Python scalar usable as a coordinate and in JSON, or a record."""
     if isinstance(value, np.generic):
         value = value.item()
-    if isinstance(value, bool | str):
+    if isinstance(value, bool | str | SettingRecord):
         return value
     if isinstance(value, numbers.Integral):
         return int(value)
@@ -33,6 +64,21 @@ def _scalar(name: str, value: object) -> int | float | str | bool:
             raise InputError(f"{name} must be finite; got {x!r}")
         return x
     raise InputError(f"{name} must be a number, a string or a bool; got {_short(value)}")
+
+
+def _value(where: str, value: object, parser: Callable | None) -> Any:
+    """``value`` through the trial's parser for its setting (if any), then checked."""
+    return _scalar(where, parser(value, where) if parser is not None else value)
+
+
+def _json(value: object) -> Any:
+    return value.to_json() if isinstance(value, SettingRecord) else value
+
+
+def settings_json(settings: Mapping) -> dict:
+    """JSON form of checked fixed settings (records as their ``to_json()``)."""
+    return {k: [_json(x) for x in v] if isinstance(v, list) else _json(v)
+            for k, v in settings.items()}
 
 
 def _check_name(what: str, key: object) -> str:
@@ -52,7 +98,7 @@ class Grid:
     names : tuple of str
         Axis names (dataset dimensions).
     values : tuple of tuple
-        Plain Python values of each axis.
+        Values of each axis: plain Python scalars or records.
     """
 
     names: tuple[str, ...]
@@ -78,27 +124,33 @@ class Grid:
         return [dict(zip(self.names, combo)) for combo in itertools.product(*self.values)]
 
     def coords(self) -> dict[str, np.ndarray]:
-        """Coordinate arrays for an xarray Dataset."""
-        return {n: np.asarray(v) for n, v in zip(self.names, self.values)}
+        """Coordinate arrays for an xarray Dataset (records by their labels)."""
+        return {n: np.asarray([v.label if isinstance(v, SettingRecord) else v for v in vals])
+                for n, vals in zip(self.names, self.values)}
 
     def to_json(self) -> list:
         """JSON-able form (ordered list of [name, values])."""
-        return [[n, list(v)] for n, v in zip(self.names, self.values)]
+        return [[n, [_json(x) for x in v]] for n, v in zip(self.names, self.values)]
 
 
-def make_grid(grid: object) -> Grid:
-    """Validate ``grid``: a mapping ``{name: 1-D sequence of values}`` (may be empty)."""
+def make_grid(grid: object, parsers: Parsers | None = None) -> Grid:
+    """Validate ``grid``: a mapping ``{name: 1-D sequence of values}`` (may be empty).
+
+    ``parsers[name](value, where)`` turns each value of axis ``name`` into a scalar
+    or a record first (see :func:`~olsbayes.studies.trial_settings`).
+    """
     if not isinstance(grid, Mapping):
         raise InputError(f"grid must be a dict of setting axes {{name: [values]}}; "
                          f"got {_short(grid)}")
+    parsers = parsers or {}
     names, values = [], []
     for key, axis in grid.items():
         name = _check_name("grid axis", key)
         if isinstance(axis, str | bytes) or not hasattr(axis, "__iter__"):
             raise InputError(f"grid[{name!r}] must be a list of values; got {_short(axis)}")
-        vals = tuple(_scalar(f"grid[{name!r}] values", v) for v in np.asarray(axis).tolist()) \
-            if isinstance(axis, np.ndarray) else tuple(_scalar(f"grid[{name!r}] values", v)
-                                                       for v in axis)
+        items = np.asarray(axis).tolist() if isinstance(axis, np.ndarray) else list(axis)
+        vals = tuple(_value(f"grid[{name!r}][{i}]", v, parsers.get(name))
+                     for i, v in enumerate(items))
         if not vals:
             raise InputError(f"grid[{name!r}] must hold at least one value; got none")
         kinds = {type(v) if not isinstance(v, int | float) or isinstance(v, bool) else float
@@ -106,27 +158,44 @@ def make_grid(grid: object) -> Grid:
         if len(kinds) > 1:
             types = sorted(k.__name__ for k in kinds)
             raise InputError(f"grid[{name!r}] mixes value types {types}; use one type per axis")
-        if len(set(vals)) != len(vals):
-            raise InputError(f"grid[{name!r}] has repeated values {list(vals)}")
+        shown = [v.label if isinstance(v, SettingRecord) else v for v in vals]
+        if len(set(shown)) != len(shown):
+            raise InputError(f"grid[{name!r}] has repeated values {shown}")
         names.append(name)
         values.append(vals)
     return Grid(tuple(names), tuple(values))
 
 
-def check_fixed(fixed: object, grid: Grid) -> dict:
-    """Validate fixed (non-swept) settings: scalars or lists of scalars, JSON-able."""
+def check_fixed(fixed: object, grid: Grid, parsers: Parsers | None = None) -> dict:
+    """Validate fixed (non-swept) settings: scalars, records or lists of scalars.
+
+    A setting with a parser (see :func:`make_grid`) is parsed as one value.
+    """
     if fixed is None:
         return {}
     if not isinstance(fixed, Mapping):
         raise InputError(f"fixed must be a dict of settings; got {_short(fixed)}")
+    parsers = parsers or {}
     out = {}
     for key, value in fixed.items():
         name = _check_name("fixed setting", key)
         if name in grid.names:
             raise InputError(f"setting {name!r} is both a grid axis and fixed; keep one")
-        if isinstance(value, list | tuple | np.ndarray):
+        if name in parsers:
+            out[name] = _value(f"fixed[{name!r}]", value, parsers[name])
+        elif isinstance(value, list | tuple | np.ndarray):
             out[name] = [_scalar(f"fixed[{name!r}]", v) for v in np.asarray(value).tolist()]
         else:
             out[name] = _scalar(f"fixed[{name!r}]", value)
-    json.dumps(out)  # guaranteed by _scalar; keeps the fingerprint well defined
+    json.dumps(settings_json(out))  # keeps the fingerprint well defined
     return out
+
+
+def check_known(names: object, known: frozenset[str] | None, trial: str) -> None:
+    """Refuse settings that ``trial`` does not read (``known`` None: not declared)."""
+    if known is None:
+        return
+    for name in names:
+        if name not in known:
+            raise InputError(f"setting {name!r} is not read by trial {trial}; accepted "
+                             f"settings: {', '.join(sorted(known))}")

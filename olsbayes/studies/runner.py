@@ -19,10 +19,10 @@ from .._io import atomic_path
 from .._validation import integer
 from .._version import __version__
 from ..errors import InputError
-from ._work import is_vectorized, run_chunk
+from ._work import check_signature, declared_settings, is_vectorized, run_chunk
 from .checkpoint import Checkpoint, ChunkRecord, fingerprint_key
 from .executors import make_backend
-from .grid import Grid, check_fixed, make_grid
+from .grid import Grid, check_fixed, check_known, make_grid, settings_json
 from .seeds import study_entropy
 
 __all__ = ["run_study", "trial_name"]
@@ -56,7 +56,7 @@ def _fingerprint(trial: Callable, grid: Grid, fixed: dict, n_trials: int, entrop
         "trial_code": _code_hash(trial),
         "vectorized": is_vectorized(trial),
         "grid": grid.to_json(),
-        "fixed": fixed,
+        "fixed": settings_json(fixed),
         "n_trials": n_trials,
         "seed": str(entropy),
         "olsbayes_version": __version__,
@@ -161,12 +161,16 @@ def run_study(
     Parameters
     ----------
     trial : callable
-        ``trial(settings, rng) -> {name: number or fixed-shape array}``, a module-level
+        ``trial(settings, *, rng) -> {name: number or fixed-shape array}``, a module-level
         function (picklable); or one marked with :func:`olsbayes.studies.vectorized`,
-        ``trial(settings, rngs) -> {name: array (T, ...)}`` for a chunk of T trials.
-        ``settings`` is ``{**fixed, **cell}``.
+        ``trial(settings, *, rngs) -> {name: array (T, ...)}`` for a chunk of T trials.
+        ``settings`` is ``{**fixed, **cell}``.  A trial that declares its settings
+        with :func:`olsbayes.studies.trial_settings` gets other settings refused and
+        its parsed settings (e.g. ``estimator``) checked here, before any trial runs.
     grid : dict
-        ``{axis name: list of values}`` (numbers, strings or bools); may be empty.
+        ``{axis name: list of values}`` (numbers, strings, bools or records such as
+        :class:`~olsbayes.studies.Estimator`, whose ``label`` becomes the
+        coordinate); may be empty.
     n_trials : int
         Trials per grid cell (>= 1).
     fixed : dict, optional
@@ -203,9 +207,12 @@ def run_study(
         ``fixed_settings`` (JSON), ``n_trials``, ``study_key``.
     """
     if not callable(trial):
-        raise InputError(f"trial must be a function (settings, rng) -> dict; got {trial!r}")
-    g = make_grid(grid)
-    fixed_s = check_fixed(fixed, g)
+        raise InputError(f"trial must be a function (settings, *, rng) -> dict; got {trial!r}")
+    check_signature(trial, trial_name(trial))
+    known, parsers = declared_settings(trial)
+    g = make_grid(grid, parsers)
+    fixed_s = check_fixed(fixed, g, parsers)
+    check_known([*g.names, *fixed_s], known, trial_name(trial))
     n_trials = integer("n_trials", n_trials, low=1)
     if chunk_size is not None:
         chunk_size = integer("chunk_size", chunk_size, low=1)

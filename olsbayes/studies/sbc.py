@@ -22,6 +22,7 @@ from scipy import stats
 from ..errors import OlsBayesWarning
 from ..geometry import Ring
 from ..model import Model
+from ._work import trial_settings
 
 __all__ = ["sbc_posterior", "sbc_k", "ranks_of", "RankTest", "rank_test", "N_DRAWS"]
 
@@ -53,7 +54,8 @@ def _thinned(res, n: int) -> np.ndarray:
     return pool[idx]
 
 
-def sbc_posterior(settings: dict, rng: np.random.Generator) -> dict:
+@trial_settings("n_sensors", "sigma", "n_sources", "i_max", "tau_multiple", "max_steps")
+def sbc_posterior(settings: dict, *, rng: np.random.Generator) -> dict:
     """One SBC replicate of :func:`olsbayes.posterior.sample` on a ring.
 
     Settings: ``n_sensors``, ``sigma``, ``n_sources``, ``i_max`` (intensity prior
@@ -87,7 +89,8 @@ def sbc_posterior(settings: dict, rng: np.random.Generator) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
-def sbc_k(settings: dict, rng: np.random.Generator) -> dict:
+@trial_settings("n_sensors", "sigma", "k_max", "method", "i_max")
+def sbc_k(settings: dict, *, rng: np.random.Generator) -> dict:
     """One SBC replicate of the posterior over K from :func:`olsbayes.select.select_k`.
 
     K_true is uniform on 0..``k_max`` (default 2), the scene is drawn from the
@@ -132,7 +135,7 @@ class RankTest:
     ks_p_value: float
 
 
-def rank_test(ranks: np.ndarray, n_draws: int, n_bins: int, rng: np.random.Generator
+def rank_test(ranks: np.ndarray, n_draws: int, n_bins: int, *, rng: np.random.Generator
               ) -> RankTest:
     """Histogram + chi-square and KS tests of ranks in 0..n_draws (n_draws + 1 divisible
     by n_bins for equal bins)."""

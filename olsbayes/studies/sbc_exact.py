@@ -24,6 +24,7 @@ import numpy as np
 
 from .._validation import as_rng
 from ..errors import InputError
+from ._work import trial_settings
 from .sbc import _model, _prior
 
 __all__ = ["exact_ring_posterior", "weighted_cdf", "sbc_exact"]
@@ -34,10 +35,10 @@ def _unit_responses(model, theta: np.ndarray) -> np.ndarray:
     return model.response(np.stack([theta, np.ones_like(theta)], axis=-1))
 
 
-def _screen(model, data: np.ndarray, k: int, ngrid: int, margin: float) -> np.ndarray:
+def _screen(model, data: np.ndarray, k: int, n_grid: int, margin: float) -> np.ndarray:
     """Grid cells (m, k) of angle indices whose best unconstrained log-likelihood is
     within ``margin`` of the grid's best (an upper bound: the box is ignored)."""
-    th = -np.pi + 2 * np.pi * np.arange(ngrid) / ngrid
+    th = -np.pi + 2 * np.pi * np.arange(n_grid) / n_grid
     g = _unit_responses(model, th)
     gd = g @ data
     if k == 1:
@@ -55,8 +56,8 @@ def _screen(model, data: np.ndarray, k: int, ngrid: int, margin: float) -> np.nd
     return np.argwhere(ll > np.max(ll) - margin).reshape(-1, k)
 
 
-def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float,
-                         rng: np.random.Generator | int | None = None, ngrid: int = 512,
+def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float, *,
+                         rng: np.random.Generator | int | None = None, n_grid: int = 512,
                          per_cell: int = 4, margin: float = 40.0
                          ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted draws of the posterior of 1 or 2 ring sources (uniform directions,
@@ -70,8 +71,8 @@ def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float,
     n_sources : {1, 2}
     i_max : float
     rng : Generator or int, optional
-    ngrid : int
-        Grid points per direction (cell width 2 pi / ngrid rad).
+    n_grid : int
+        Grid points per direction (cell width 2 pi / n_grid rad).
     per_cell : int
         Importance draws per kept cell.
     margin : float
@@ -93,8 +94,8 @@ def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float,
         raise InputError(f"n_sources must be 1 or 2; got {n_sources!r}")
     gen = as_rng(rng)
     data = np.asarray(data, dtype=float)
-    cells = np.repeat(_screen(model, data, k, int(ngrid), float(margin)), per_cell, axis=0)
-    n, h = len(cells), 2 * np.pi / ngrid
+    cells = np.repeat(_screen(model, data, k, int(n_grid), float(margin)), per_cell, axis=0)
+    n, h = len(cells), 2 * np.pi / n_grid
     theta = -np.pi + h * (cells + gen.uniform(-0.5, 0.5, cells.shape))  # (n, k)
     g = _unit_responses(model, theta.ravel()).reshape(n, k, -1).swapaxes(1, 2)  # (n, N, k)
     gram = np.einsum("nsi,nsj->nij", g, g)
@@ -113,7 +114,7 @@ def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float,
     logw = np.where(inside, -0.5 * chi2_min + 0.5 * log_det_cov, -np.inf)
     if not np.any(np.isfinite(logw)):
         raise InputError("exact_ring_posterior: no draw inside the intensity prior; "
-                         "increase per_cell or ngrid")
+                         "increase per_cell or n_grid")
     w = np.exp(logw - np.max(logw))
     x = np.stack([theta, inten], axis=-1).reshape(len(theta), 2 * k)
     return model.canonical(x), w / w.sum()
@@ -124,7 +125,8 @@ def weighted_cdf(draws: np.ndarray, weights: np.ndarray, value: np.ndarray) -> n
     return np.asarray(weights) @ (np.asarray(draws) < np.asarray(value))
 
 
-def sbc_exact(settings: dict, rng: np.random.Generator) -> dict:
+@trial_settings("n_sensors", "sigma", "n_sources", "i_max", "n_grid")
+def sbc_exact(settings: dict, *, rng: np.random.Generator) -> dict:
     """One SBC replicate of :func:`exact_ring_posterior`, same settings and random stream
     as :func:`~olsbayes.studies.sbc.sbc_posterior` (so the same scene for the same seed).
 
@@ -136,6 +138,6 @@ def sbc_exact(settings: dict, rng: np.random.Generator) -> dict:
     prior = _prior(model, settings, k)
     truth = prior.sample(rng=rng)
     data = model.simulate(truth, rng)
-    draws, w = exact_ring_posterior(model, data, k, float(settings.get("i_max", 2.0)), rng,
-                                    ngrid=int(settings.get("ngrid", 512)))
+    draws, w = exact_ring_posterior(model, data, k, float(settings.get("i_max", 2.0)), rng=rng,
+                                    n_grid=int(settings.get("n_grid", 512)))
     return {"cdf": weighted_cdf(draws, w, model.canonical(truth)), "ess": 1.0 / np.sum(w * w)}

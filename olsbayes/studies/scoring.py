@@ -64,7 +64,7 @@ def score(model: Model, est: np.ndarray, truth: np.ndarray) -> dict[str, np.ndar
     }
 
 
-def ring_truth(model: Model, settings: dict, rng: np.random.Generator) -> np.ndarray:
+def ring_truth(model: Model, settings: dict, *, rng: np.random.Generator) -> np.ndarray:
     """One ring scene (2K,) for a trial.
 
     The first source is uniform on the circle -- or, with ``kink = True``, exactly

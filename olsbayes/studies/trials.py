@@ -1,7 +1,8 @@
 """Ready-made trial functions (module level, so any executor can run them).
 
-Each takes ``settings`` with the keys listed in its docstring and a numpy
-Generator (or, for the vectorised ones, a list of Generators, one per trial).
+Each takes ``settings`` with the keys listed in its docstring and, keyword-only,
+a numpy Generator ``rng`` (or, for the vectorised ones, ``rngs``: a list of
+Generators, one per trial).
 """
 
 from __future__ import annotations
@@ -10,12 +11,12 @@ import numpy as np
 
 from ..geometry import Ring
 from ..model import Model
-from ._work import vectorized
+from ._work import trial_settings, vectorized
 
 __all__ = ["ring_scene", "noise_check", "noise_check_batch"]
 
 
-def ring_scene(settings: dict, rng: np.random.Generator) -> np.ndarray:
+def ring_scene(settings: dict, *, rng: np.random.Generator) -> np.ndarray:
     """Random ring scene: K sources, the first uniform on the circle, the others at
     multiples of ``separation`` (rad) from it, all of intensity ``intensity``.
 
@@ -34,7 +35,11 @@ def _ring_model(settings: dict) -> Model:
     return Model(Ring(int(settings["n_sensors"])), float(settings["sigma"]))
 
 
-def noise_check(settings: dict, rng: np.random.Generator) -> dict:
+_SETTINGS = ("n_sensors", "sigma", "n_sources", "separation", "intensity")
+
+
+@trial_settings(*_SETTINGS)
+def noise_check(settings: dict, *, rng: np.random.Generator) -> dict:
     """Simulate one ring scene and measure its noise: chi2 of the truth (~ chi2_N).
 
     Settings: ``n_sensors``, ``sigma`` and those of :func:`ring_scene`.
@@ -43,7 +48,7 @@ def noise_check(settings: dict, rng: np.random.Generator) -> dict:
     standardised residual over the sub-sensors.
     """
     model = _ring_model(settings)
-    x = ring_scene(settings, rng)
+    x = ring_scene(settings, rng=rng)
     data = model.simulate(x, rng)
     resid = data - model.response(x)
     z = resid / model.sigma
@@ -51,10 +56,11 @@ def noise_check(settings: dict, rng: np.random.Generator) -> dict:
 
 
 @vectorized
-def noise_check_batch(settings: dict, rngs: list[np.random.Generator]) -> dict:
+@trial_settings(*_SETTINGS)
+def noise_check_batch(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
     """Vectorised :func:`noise_check`: the same numbers, one batched model call."""
     model = _ring_model(settings)
-    xs = np.stack([ring_scene(settings, r) for r in rngs])
+    xs = np.stack([ring_scene(settings, rng=r) for r in rngs])
     noise = np.stack([r.standard_normal(model.n_sensors) for r in rngs])
     data = model.response(xs) + model.sigma * noise
     z = (data - model.response(xs)) / model.sigma
