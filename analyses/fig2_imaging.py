@@ -10,16 +10,16 @@ Matlab's ``linspace(-pi, pi, 20)`` with the +-pi meridian doubled; sources
 ``endpoints`` or ``centres``) and T noise draws it reports the design's rank
 and the error of
 
-* ``bounded-MAP``: ``image(prior="bounded", n_samples=0)``, the mode-only
-  path -- bounded least squares (BVLS), the mode of the posterior under the
-  uniform [0, 1] prior (not unique when the design has a null space), plus the
+* ``bounded-MAP``: ``image(prior="bounded", options=ImageOptions(n_samples=0))``, the
+  mode-only path -- bounded least squares (BVLS), the mode of the posterior under
+  the uniform [0, 1] prior (not unique when the design has a null space), plus the
   design diagnostics -- with its wall time (the "<= 1 s" target; compare the
   ``bounded-gibbs`` row, the same prior sampled);
 * ``MAP-rounded``: the bounded MAP rounded to {0, 1} -- not a posterior, a
   check of what two-valuedness buys: it shows whether the 0/1 scene is
   recoverable from the readings at all, independently of sampler mixing;
-* ``two-level``: ``image(prior="two-level", reference=truth)``, the MAP of the
-  prior "each intensity 0 or 1 (P = 1/2)" by local search from the rounded
+* ``two-level``: ``image(prior="two-level", options=ImageOptions(reference=truth))``, the
+  MAP of the prior "each intensity 0 or 1 (P = 1/2)" by local search from the rounded
   BVLS mode and the rounded L1 relaxation; ``fails`` counts draws where the
   truth has a higher log posterior than the scene found (search failures),
   ``beats_truth`` draws where the scene found is not the truth and has a higher
@@ -65,7 +65,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.imaging import analyse_design, design_matrix  # noqa: E402
+from olsbayes.imaging import ImageOptions, analyse_design, design_matrix  # noqa: E402
 from olsbayes.imaging.olss import SIGMA, fig2_sphere, olss_bitmap, olss_directions  # noqa: E402
 
 PAPER_SD = 0.0640
@@ -105,29 +105,31 @@ def run_convention(sensors: str, sources: str, trials: int, n_mcmc: int, n_sampl
         for t in range(trials):
             truth = truths[t]
             t0 = time.perf_counter()
-            mode = ob.image(model, data[t], dirs, prior="bounded", n_samples=0).mode
+            mode = ob.image(model, data[t], dirs, "bounded",
+                            options=ImageOptions(n_samples=0)).mode
             secs["bounded-MAP"].append(time.perf_counter() - t0)
             est["bounded-MAP"].append(mode)
             est["MAP-rounded"].append(np.round(mode))
             secs["MAP-rounded"].append(secs["bounded-MAP"][-1])
             for name, extra in (("two-level", 0), ("two-level+40", 40)) if binary else ():
                 t0 = time.perf_counter()
-                tl = ob.image(model, data[t], dirs, prior="two-level", reference=truth,
-                              restarts=extra, rng=rng)
+                tl = ob.image(model, data[t], dirs, "two-level", rng=rng,
+                              options=ImageOptions(reference=truth, restarts=extra))
                 secs[name].append(time.perf_counter() - t0)
                 est[name].append(tl.mode)
                 fails[name].append(tl.search.reference_better)
                 beats[name].append(bool(np.any(tl.mode != truth))
                                    and not tl.search.reference_better)
-            runs = [("gaussian", dict(prior="gaussian"))]
+            runs = [("gaussian", "gaussian", {})]
             if t < n_mcmc:
-                mc = dict(n_samples=n_samples, n_burn=n_samples // 2, rng=rng)
-                runs += [("bounded-gibbs", dict(prior="bounded", sampler="gibbs", **mc))]
+                mc = dict(n_samples=n_samples, n_burn=n_samples // 2)
+                runs += [("bounded-gibbs", "bounded",
+                          dict(options=ImageOptions(sampler="gibbs", **mc), rng=rng))]
                 if binary and sparse:
-                    runs += [("sparse", dict(prior="sparse", **mc))]
-            for name, kw in runs:
+                    runs += [("sparse", "sparse", dict(options=ImageOptions(**mc), rng=rng))]
+            for name, prior, kw in runs:
                 t0 = time.perf_counter()
-                res = ob.image(model, data[t], dirs, **kw)
+                res = ob.image(model, data[t], dirs, prior, **kw)
                 secs[name].append(time.perf_counter() - t0)
                 est[name].append(res.mean)
                 cover[name].append(res.covers(truth))

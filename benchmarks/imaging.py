@@ -1,13 +1,13 @@
 """Imaging benchmark (Fig. 2 scene): error, time and coverage against the targets.
 
-Targets (issue 5): error sd <= 0.064 (the paper's figure) with the bounded prior
+Targets: error sd <= 0.064 (the paper's figure) with the bounded prior
 in <= 1 s; <= 0.032 with the sparse prior; 90 % intervals covering the truth
 90 % +- 5 % of the time.  For each sensor-grid convention (``grid`` = 20
 distinct meridians, ``linspace`` = Matlab's linspace(-pi, pi, 20); sources at
 the range endpoints) the estimators run side by side on the same noise draws:
 
-* ``bounded-mode``  ``image(prior="bounded", n_samples=0)``: the posterior mode
-  (BVLS) with the design diagnostics, no sampling -- the "<= 1 s" path;
+* ``bounded-mode``  ``image(prior="bounded", options=ImageOptions(n_samples=0))``: the
+  posterior mode (BVLS) with the design diagnostics, no sampling -- the "<= 1 s" path;
 * ``two-level``     ``image(prior="two-level")``: MAP of the 0/1 prior by local
   search (``fails``: draws where the truth has a higher log posterior than the
   scene found, i.e. search failures); ``two-level+40`` the same with 40 extra
@@ -16,14 +16,14 @@ the range endpoints) the estimators run side by side on the same noise draws:
 * ``gaussian``      closed-form posterior mean (prior N(0.5, 0.5^2));
 * ``bounded``       posterior mean of the uniform [0, 1] prior (Gibbs + pair moves +
   window moves along the slow eigen-directions of each source's 16-source window);
-  ``bounded-nowin`` the same without the window moves (``window=0``);
-* ``bounded-eigen`` the same posterior sampled with ``sampler="eigen"`` (single
-  site + exact moves along the eigenvectors of A^T A, null space included);
+  ``bounded-nowin`` the same without the window moves (``ImageOptions(window=0)``);
+* ``bounded-eigen`` the same posterior sampled with ``ImageOptions(sampler="eigen")``
+  (single site + exact moves along the eigenvectors of A^T A, null space included);
 * ``sparse``        posterior mean of the spike-and-slab prior (Gibbs + pair moves).
 
 Printed per row: error sd and its ratio to the target, median wall and CPU
-seconds (the machine is shared: CPU time is the cost of the call, wall time
-includes waiting for a core; both are ratios to the 1 s target; the mode-only and sampled
+seconds (CPU time is the cost of the call, wall time also includes waiting for
+a core; both are ratios to the 1 s target; the mode-only and sampled
 bounded rows are the fast and full paths of the same call), coverage of the
 90 % intervals, largest split R-hat.
 
@@ -33,7 +33,7 @@ sigma = 0.3 so the walls matter) where the bounded Gibbs chains do mix, it
 measures the 90 % HPD coverage for truths at the box vertices (0/1, like OLSS)
 and for truths drawn from the uniform prior itself (where a calibrated
 posterior covers 90 % on average).  BLAS is
-pinned to one thread (the machine is shared); timings are wall-clock medians.
+pinned to one thread; timings are medians.
 
 ``python benchmarks/imaging.py`` (T = 20 draws for the fast estimators, 3 for
 the samplers, 60 draws per chain) or ``--full`` (20 for all, 200 per chain);
@@ -58,7 +58,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.imaging import design_matrix  # noqa: E402
+from olsbayes.imaging import ImageOptions, design_matrix  # noqa: E402
 from olsbayes.imaging.olss import SIGMA, fig2_sphere, olss_bitmap, olss_directions  # noqa: E402
 
 TARGET_SD = {"bounded-mode": 0.064, "two-level": 0.032, "two-level+40": 0.032,
@@ -75,24 +75,28 @@ def bench(sensors: str, trials: int, mc_trials: int, n_samples: int, seed: np.ra
     data = a @ truth + SIGMA * rng.standard_normal((trials, a.shape[0]))
     rec = {k: {"err": [], "sec": [], "cpu": [], "cov": [], "rhat": [], "fail": [], "exact": []}
            for k in TARGET_SD}
-    mc = dict(n_samples=n_samples, n_burn=n_samples // 2, rng=rng)
+    mc = dict(n_samples=n_samples, n_burn=n_samples // 2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ob.NullSpaceWarning)
         warnings.simplefilter("ignore", ob.ConvergenceWarning)
         for t in range(trials):
-            calls = [("bounded-mode", dict(prior="bounded", n_samples=0)),
-                     ("two-level", dict(prior="two-level", reference=truth)),
-                     ("two-level+40", dict(prior="two-level", reference=truth, restarts=40,
-                                           rng=rng)),
-                     ("gaussian", dict(prior="gaussian"))]
+            calls = [("bounded-mode", "bounded", dict(options=ImageOptions(n_samples=0))),
+                     ("two-level", "two-level", dict(options=ImageOptions(reference=truth))),
+                     ("two-level+40", "two-level",
+                      dict(options=ImageOptions(reference=truth, restarts=40), rng=rng)),
+                     ("gaussian", "gaussian", {})]
             if t < mc_trials:
-                calls += [("bounded", dict(prior="bounded", **mc)),
-                          ("bounded-nowin", dict(prior="bounded", window=0, **mc)),
-                          ("bounded-eigen", dict(prior="bounded", sampler="eigen", **mc)),
-                          ("sparse", dict(prior="sparse", **mc))]
-            for name, kw in calls:
+                calls += [
+                    ("bounded", "bounded", dict(options=ImageOptions(**mc), rng=rng)),
+                    ("bounded-nowin", "bounded",
+                     dict(options=ImageOptions(window=0, **mc), rng=rng)),
+                    ("bounded-eigen", "bounded",
+                     dict(options=ImageOptions(sampler="eigen", **mc), rng=rng)),
+                    ("sparse", "sparse", dict(options=ImageOptions(**mc), rng=rng)),
+                ]
+            for name, prior, kw in calls:
                 t0, c0 = time.perf_counter(), time.process_time()
-                res = ob.image(model, data[t], dirs, **kw)
+                res = ob.image(model, data[t], dirs, prior, **kw)
                 rec[name]["sec"].append(time.perf_counter() - t0)
                 rec[name]["cpu"].append(time.process_time() - c0)
                 rec[name]["err"].append(res.mean - truth)
@@ -134,7 +138,8 @@ def calibration(trials: int, seed: np.random.SeedSequence) -> list[dict]:
         for _ in range(trials):
             truth = (rng.random(8) < 0.3).astype(float) if truths[0] == "v" else rng.random(8)
             y = a @ truth + sigma * rng.standard_normal(a.shape[0])
-            res = ob.image(model, y, dirs, prior="bounded", rng=rng, n_samples=400, n_burn=100)
+            res = ob.image(model, y, dirs, "bounded", rng=rng,
+                           options=ImageOptions(n_samples=400, n_burn=100))
             cov.append(res.covers(truth).mean())
             rhat.append(res.rhat)
         rows.append({"truths": truths, "draws": trials, "coverage90": float(np.mean(cov)),

@@ -9,6 +9,10 @@ from scipy import integrate, stats
 import olsbayes as ob
 from olsbayes.errors import ConvergenceWarning, InputError, NullSpaceWarning
 from olsbayes.imaging import (
+    Bounded,
+    Gaussian,
+    ImageOptions,
+    NonNegative,
     design_matrix,
     gaussian_posterior,
     gibbs_intensities,
@@ -87,7 +91,7 @@ def test_gaussian_posterior_matches_brute_force_grid(ring_problem):
 
 def test_image_gaussian_is_the_closed_form(ring_problem):
     model, dirs, a, y = ring_problem
-    res = image(model, y, dirs, prior="gaussian", prior_mean=0.2, prior_sd=0.7, level=0.8)
+    res = image(model, y, dirs, Gaussian(mean=0.2, sd=0.7), options=ImageOptions(level=0.8))
     post = gaussian_posterior(a, y, model.sigma, np.full(2, 0.2), np.full(2, 0.7))
     np.testing.assert_allclose(res.mean, post.mean)
     np.testing.assert_allclose(res.sd, post.sd)
@@ -244,13 +248,15 @@ def test_bounded_image_on_a_well_posed_ring():
     truth = np.array([0.9, 0.0, 0.4])
     noise = model.sigma * np.random.default_rng(9).standard_normal(30)
     y = design_matrix(model, dirs) @ truth + noise
-    res = image(model, y, dirs, prior="bounded", rng=1, n_samples=400, n_burn=50, sampler="hmc")
+    res = image(model, y, dirs, "bounded", rng=1,
+                options=ImageOptions(n_samples=400, n_burn=50, sampler="hmc"))
     assert res.rank == 3 and res.sampler == "hmc" and res.samples.shape == (4, 400, 3)
     assert res.rhat < 1.05
     assert np.all((res.samples >= 0) & (res.samples <= 1))
     assert np.all(np.abs(res.mean - truth) < 4 * res.sd + 0.02)
     assert res.lower[1] == 0.0  # the dark source's interval reaches 0
-    gib = image(model, y, dirs, prior="bounded", rng=2, n_samples=400, sampler="gibbs")
+    gib = image(model, y, dirs, "bounded", rng=2,
+                options=ImageOptions(n_samples=400, sampler="gibbs"))
     np.testing.assert_allclose(gib.mean, res.mean, atol=4 * res.sd.max() / np.sqrt(100))
 
 
@@ -262,8 +268,8 @@ def test_nonnegative_image_matches_2d_quadrature(ring_problem):
     hi = 3.5  # > 13 posterior sd above the unconstrained mean: the cut-off is immaterial
     mean, cov = _box_moments_2d(q, b, np.zeros(2), np.full(2, hi))
     for sampler in ("gibbs", "hmc"):
-        res = image(model, y, dirs, prior="nonnegative", sampler=sampler, rng=8,
-                    n_samples=1500, n_chains=8, n_burn=50)
+        res = image(model, y, dirs, NonNegative(), rng=8, options=ImageOptions(
+            sampler=sampler, n_samples=1500, n_chains=8, n_burn=50))
         assert res.prior == "nonnegative" and res.sampler == sampler
         assert np.all(res.samples >= 0) and np.all(np.isfinite(res.upper))
         x = np.moveaxis(res.samples, 1, 0)  # (S, C, 2)
@@ -276,8 +282,9 @@ def test_nonnegative_image_matches_2d_quadrature(ring_problem):
 
 def test_image_is_reproducible_with_a_seed(ring_problem):
     model, dirs, a, y = ring_problem
-    r1 = image(model, y, dirs, rng=5, n_samples=20, n_burn=5)
-    r2 = image(model, y, dirs, rng=5, n_samples=20, n_burn=5)
+    opts = ImageOptions(n_samples=20, n_burn=5)
+    r1 = image(model, y, dirs, rng=5, options=opts)
+    r2 = image(model, y, dirs, rng=5, options=opts)
     np.testing.assert_array_equal(r1.samples, r2.samples)
 
 
@@ -288,8 +295,8 @@ def test_poorly_mixed_chains_warn():
     with pytest.warns(ConvergenceWarning):
         # window=0: single-site + pair moves only (window moves mix this problem,
         # see test_imaging_window.py)
-        image(model, y, dirs, prior="bounded", sampler="gibbs", rng=0, n_samples=20, n_burn=0,
-              null_warn=1.0, window=0)
+        image(model, y, dirs, "bounded", rng=0, options=ImageOptions(
+            sampler="gibbs", n_samples=20, n_burn=0, null_warn=1.0, window=0))
 
 
 @pytest.mark.parametrize(
@@ -301,13 +308,10 @@ def test_poorly_mixed_chains_warn():
         (dict(directions=np.array([[0.0, 0.1, 0.2]])), "shape"),
         (dict(directions=np.array([[0.0, np.nan]])), "finite"),
         (dict(data=np.zeros(5)), "length 40"),
-        (dict(i_max=0.0), "i_max"),
-        (dict(i_max=-1.0), "i_max"),
-        (dict(prior="laplace"), "prior"),
-        (dict(sampler="nuts"), "sampler"),
-        (dict(level=1.0), r"level must be a number in \(0, 1\)"),
-        (dict(level=0.0), r"level must be a number in \(0, 1\)"),
-        (dict(n_samples=1), "n_samples"),
+        (dict(prior="laplace"), "prior must be one of"),
+        (dict(prior=Bounded), "prior must be one of"),
+        (dict(options={"n_samples": 10}), "options must be an olsbayes.imaging.ImageOptions"),
+        (dict(options=ImageOptions(n_samples=1)), "n_samples"),
     ],
 )
 def test_bad_inputs_raise_input_error(kwargs, match):

@@ -45,10 +45,26 @@ def test_image_json_and_figure(scene, tmp_path, capsys):
     assert out["error_sd"] < 0.05 and png.stat().st_size > 0
 
 
-def test_image_gaussian_reports_evidence(scene, capsys):
-    assert main(["image", str(scene), "--json", "--prior", "gaussian"]) == 0
+def test_image_gaussian_reports_evidence(tmp_path, capsys):
+    path = tmp_path / "closed.toml"
+    path.write_text(SCENE.replace("[image]\nn_samples = 40\n", ""))
+    assert main(["image", str(path), "--json", "--prior", "gaussian", "--i-max", "2"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["log_evidence"] is not None and out["sampler"] == "closed-form"
+    assert out["prior"] == "gaussian" and out["effective_rank"] == 3
+
+
+@pytest.mark.parametrize("extra,match", [
+    (["--prior", "gaussian"], "n_samples = 40 does not apply to prior 'gaussian'"),
+    (["--set", "image.prior_bright=0.3"], "prior_bright = 0.3 does not apply to prior 'bounded'"),
+    (["--set", "image.window=3", "--set", "image.sampler=hmc"], "window = 3 does not apply"),
+    (["--prior", "two-level", "--n-samples", "0", "--set", "image.n_chains=2"],
+     "n_chains = 2 does not apply to prior 'two-level'"),
+])
+def test_image_setting_the_prior_does_not_use_exits_2(scene, capsys, extra, match):
+    assert main(["image", str(scene), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("olsbayes: error:") and match in err and err.count("\n") == 1
 
 
 @pytest.mark.parametrize("extra,match", [(["--i-max", "0"], "i_max"),

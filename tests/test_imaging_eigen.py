@@ -7,7 +7,7 @@ import pytest
 from scipy import integrate
 
 import olsbayes as ob
-from olsbayes.imaging import design_matrix, image
+from olsbayes.imaging import ImageOptions, design_matrix, image
 from olsbayes.imaging.eigen import eigen_gibbs
 
 
@@ -71,9 +71,10 @@ def test_eigen_gibbs_nonnegative_1d_half_line():
 
 def test_image_with_the_eigen_sampler(ring_problem_eigen):
     model, dirs, y = ring_problem_eigen
-    res = image(model, y, dirs, prior="bounded", sampler="eigen", rng=4, n_samples=300,
-                n_burn=20)
-    ref = image(model, y, dirs, prior="bounded", sampler="hmc", rng=5, n_samples=300, n_burn=20)
+    res = image(model, y, dirs, "bounded", rng=4,
+                options=ImageOptions(sampler="eigen", n_samples=300, n_burn=20))
+    ref = image(model, y, dirs, "bounded", rng=5,
+                options=ImageOptions(sampler="hmc", n_samples=300, n_burn=20))
     assert res.sampler == "eigen" and res.samples.shape == (4, 300, 2) and res.rhat < 1.05
     # both means are Monte Carlo estimates: 5 sd of their difference, by batch means
     # over the pooled (draws, chains) of each run (autocorrelation included)

@@ -10,7 +10,7 @@ from scipy.optimize import lsq_linear
 
 import olsbayes as ob
 from olsbayes.errors import InputError
-from olsbayes.imaging import design_matrix, image
+from olsbayes.imaging import Bounded, ImageOptions, NonNegative, TwoLevel, design_matrix, image
 from olsbayes.imaging.binary import two_level_log_posterior, two_level_map
 
 
@@ -35,10 +35,11 @@ def sphere_problem():
 
 
 # -- mode only -------------------------------------------------------------------
-@pytest.mark.parametrize("prior,hi", [("bounded", 2.0), ("nonnegative", np.inf)])
+@pytest.mark.parametrize("prior,hi", [(Bounded(i_max=2.0), 2.0),
+                                      (NonNegative(scale=2.0), np.inf)])
 def test_mode_only_is_bounded_least_squares_without_sampling(sphere_problem, prior, hi):
     model, dirs, a, y, _ = sphere_problem
-    res = image(model, y, dirs, prior=prior, i_max=2.0, n_samples=0)
+    res = image(model, y, dirs, prior, options=ImageOptions(n_samples=0))
     ref = lsq_linear(a, y, bounds=(0.0, hi), method="bvls").x
     np.testing.assert_allclose(res.mode, ref, atol=1e-10)
     np.testing.assert_array_equal(res.mean, res.mode)
@@ -56,7 +57,7 @@ def test_mode_only_is_bounded_least_squares_without_sampling(sphere_problem, pri
 def test_n_samples_rules_per_prior(sphere_problem, prior, n, match):
     model, dirs, _, y, _ = sphere_problem
     with pytest.raises(InputError, match=match):
-        image(model, y, dirs, prior=prior, n_samples=n)
+        image(model, y, dirs, prior, options=ImageOptions(n_samples=n))
 
 
 # -- two-level MAP ---------------------------------------------------------------
@@ -71,7 +72,8 @@ def test_two_level_log_posterior_matches_the_formula(sphere_problem):
 def test_two_level_image_finds_the_brute_force_map(sphere_problem, p):
     model, dirs, a, y, truth = sphere_problem
     best, best_lp, _ = _brute_force(a, y, model.sigma, 2.0, p)
-    res = image(model, y, dirs, prior="two-level", i_max=2.0, prior_bright=p, reference=truth)
+    res = image(model, y, dirs, TwoLevel(i_max=2.0, p_bright=p),
+                options=ImageOptions(reference=truth))
     assert res.sampler == "map-search" and res.samples is None
     np.testing.assert_array_equal(res.mode, best)
     np.testing.assert_array_equal(res.mean, res.mode)
@@ -127,15 +129,16 @@ def test_group_moves_flip_a_checkerboard_that_no_2_flip_reaches():
     assert grouped.n_group_moves == 1 and grouped.reference_better is False
 
 
-@pytest.mark.parametrize(
-    "kwargs,match",
-    [(dict(prior_bright=1.0), "prior_bright"), (dict(prior_bright=0.0), "prior_bright"),
-     (dict(reference=np.zeros(3)), "reference must have shape")],
-)
-def test_two_level_bad_input(sphere_problem, kwargs, match):
+@pytest.mark.parametrize("p", [1.0, 0.0, -0.5, np.nan, True, "0.5"])
+def test_two_level_p_bright_outside_the_open_unit_interval_is_refused(p):
+    with pytest.raises(InputError, match=r"TwoLevel.p_bright must be a number in \(0, 1\)"):
+        TwoLevel(p_bright=p)
+
+
+def test_two_level_reference_of_the_wrong_length_is_refused(sphere_problem):
     model, dirs, _, y, _ = sphere_problem
-    with pytest.raises(InputError, match=match):
-        image(model, y, dirs, prior="two-level", **kwargs)
+    with pytest.raises(InputError, match=r"reference must have shape \(10,\)"):
+        image(model, y, dirs, "two-level", options=ImageOptions(reference=np.zeros(3)))
 
 
 def test_search_stops_at_max_moves_and_says_so(sphere_problem):
@@ -148,10 +151,11 @@ def test_search_stops_at_max_moves_and_says_so(sphere_problem):
 
 def test_two_level_restarts_are_reproducible_and_never_worse(sphere_problem):
     model, dirs, a, y, truth = sphere_problem
-    plain = image(model, y, dirs, prior="two-level", i_max=2.0, reference=truth)
-    r1 = image(model, y, dirs, prior="two-level", i_max=2.0, restarts=5, rng=3)
-    r2 = image(model, y, dirs, prior="two-level", i_max=2.0, restarts=5, rng=3)
+    prior = TwoLevel(i_max=2.0)
+    plain = image(model, y, dirs, prior, options=ImageOptions(reference=truth))
+    r1 = image(model, y, dirs, prior, options=ImageOptions(restarts=5), rng=3)
+    r2 = image(model, y, dirs, prior, options=ImageOptions(restarts=5), rng=3)
     np.testing.assert_array_equal(r1.mode, r2.mode)
     assert r1.search.log_posterior >= plain.search.log_posterior - 1e-9
     with pytest.raises(InputError, match="restarts"):
-        image(model, y, dirs, prior="two-level", restarts=-1)
+        ImageOptions(restarts=-1)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import olsbayes as ob
-from olsbayes.imaging import design_matrix, image
+from olsbayes.imaging import ImageOptions, design_matrix, image
 from olsbayes.imaging._window_kernel import _line, truncnorm_inv
 from olsbayes.imaging.sparse import gibbs_intensities
 from olsbayes.imaging.truncated import truncnorm_1d
@@ -140,9 +140,9 @@ def test_window_moves_mix_closely_spaced_sources():
     model = ob.Model(ob.Ring(30), sigma=0.05)
     dirs = np.linspace(-0.4, 0.4, 9)
     y = design_matrix(model, dirs) @ np.full(9, 0.5)
-    kw = dict(prior="bounded", n_samples=400, n_burn=40, null_warn=1.0)
-    res = image(model, y, dirs, sampler="gibbs", rng=0, **kw)
-    ref = image(model, y, dirs, sampler="hmc", rng=1, **kw)
+    kw = dict(n_samples=400, n_burn=40, null_warn=1.0)
+    res = image(model, y, dirs, "bounded", rng=0, options=ImageOptions(sampler="gibbs", **kw))
+    ref = image(model, y, dirs, "bounded", rng=1, options=ImageOptions(sampler="hmc", **kw))
     assert res.rhat < 1.1
     se = np.hypot(*(_batch_se(np.moveaxis(r.samples, 1, 0).reshape(-1, 9)) for r in (res, ref)))
     np.testing.assert_array_less(np.abs(res.mean - ref.mean), 5 * se)

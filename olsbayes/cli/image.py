@@ -4,7 +4,8 @@ Readings come from --data FILE, else from the config's [data] section (a file
 or a simulation of [scene]).  The known directions come from [image] directions,
 else from [scene] directions (imaging at the scene's own source directions).
 Options come from the command line, else from an optional [image] section
-(directions, prior, i_max, level, n_samples, n_chains, sampler, neighbours, window).
+(directions, prior, i_max, level, n_samples, n_chains, sampler, neighbours, window,
+prior_bright, restarts); a setting the prior does not use is an error.
 
 Prints the design's rank and null space size and, per direction, the posterior
 mean, sd, credible interval and how much of it the array cannot see
@@ -25,10 +26,22 @@ from typing import Any
 
 import numpy as np
 
+from .._validation import positive_float
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import Field, Section, read_readings, register_section
 from ..errors import InputError
-from ..imaging import PRIORS, SAMPLERS, image
+from ..imaging import (
+    PRIORS,
+    SAMPLERS,
+    Bounded,
+    Gaussian,
+    ImageOptions,
+    ImagingPrior,
+    NonNegative,
+    Sparse,
+    TwoLevel,
+    image,
+)
 from ._common import (
     add_command,
     add_config_args,
@@ -49,19 +62,24 @@ register_section(Section(
         "directions": Field("array", ndim=(1, 2),
                             doc="known source directions: ring angles or [[lon, lat], ...] (rad)"),
         "prior": Field("str", default="bounded", choices=PRIORS, doc="intensity prior"),
-        "i_max": Field("float", default=1.0, positive=True, doc="upper intensity bound"),
+        "i_max": Field("float", default=1.0, positive=True,
+                       doc="intensity scale: upper bound (bounded, sparse), bright level "
+                           "(two-level), N(i_max/2, (i_max/2)^2) (gaussian)"),
         "level": Field("float", default=0.9, low=0.01, high=0.999, doc="interval credibility"),
+        # the keys below have no default here: each one given must apply to the prior
         "n_samples": Field("int", low=0, high=1_000_000,
                            doc="draws per chain (default 200; 0 = posterior mode only)"),
-        "n_chains": Field("int", default=4, low=1, high=256, doc="sampler chains"),
-        "sampler": Field("str", default="gibbs", choices=SAMPLERS, doc="box-prior sampler"),
-        "neighbours": Field("int", default=4, low=0, high=64, doc="pair moves per source"),
-        "window": Field("int", default=15, low=0, high=64,
-                        doc="box-prior Gibbs: window moves over each source + this many nearest"),
-        "prior_bright": Field("float", default=0.5, low=1e-9, high=1 - 1e-9,
-                              doc="two-level prior: probability that a source is bright"),
-        "restarts": Field("int", default=0, low=0, high=10_000,
-                          doc="two-level prior: extra randomly rounded search starts"),
+        "n_chains": Field("int", low=1, high=256, doc="sampler chains (default 4)"),
+        "sampler": Field("str", choices=SAMPLERS, doc="box-prior sampler (default gibbs)"),
+        "neighbours": Field("int", low=0, high=64, doc="pair moves per source (default 4)"),
+        "window": Field("int", low=0, high=64,
+                        doc="box-prior Gibbs: window moves over each source + this many "
+                            "nearest (default 15)"),
+        "prior_bright": Field("float", low=1e-9, high=1 - 1e-9,
+                              doc="two-level prior: probability that a source is bright "
+                                  "(default 0.5)"),
+        "restarts": Field("int", low=0, high=10_000,
+                          doc="two-level prior: extra randomly rounded search starts (default 0)"),
     },
 ))
 
@@ -74,7 +92,9 @@ def register(subparsers: Any) -> None:
                    help="readings (text/CSV/.npy, one row of N readings)")
     p.add_argument("--prior", choices=PRIORS, default=None, help="intensity prior")
     p.add_argument("--i-max", type=float, default=None, metavar="I",
-                   help="upper bound of the intensities (default 1)")
+                   help="intensity scale: upper bound of the bounded and sparse priors, "
+                        "bright level of the two-level prior, N(I/2, (I/2)^2) for the "
+                        "gaussian prior (default 1)")
     p.add_argument("--n-samples", type=int, default=None, metavar="S",
                    help="draws per chain (default 200; 0 = posterior mode only, no sampling; "
                         "the two-level prior is MAP only)")
@@ -106,30 +126,53 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, np.ndarray, np.ndarray, np.n
         truth = scene.intensities if args.data is None else None
     else:
         raise InputError("image needs known directions: [image] directions or a [scene]")
-    opts = {
-        "prior": args.prior or sec.get("prior", "bounded"),
-        "i_max": args.i_max if args.i_max is not None else sec.get("i_max", 1.0),
-        "n_samples": args.n_samples if args.n_samples is not None else sec.get("n_samples"),
-        "level": sec.get("level", 0.9),
-        "n_chains": sec.get("n_chains", 4),
-        "sampler": sec.get("sampler", "gibbs"),
-        "neighbours": sec.get("neighbours", 4),
-        "window": sec.get("window", 15),
-        "prior_bright": sec.get("prior_bright", 0.5),
-        "restarts": sec.get("restarts", 0),
+    if args.prior is not None:
+        sec["prior"] = args.prior
+    for key in ("i_max", "n_samples"):
+        if getattr(args, key) is not None:
+            sec[key] = getattr(args, key)
+    return model, data, np.asarray(dirs, dtype=float), truth, sec
+
+
+def _prior(sec: dict[str, Any]) -> ImagingPrior:
+    """The prior object of the [image] settings (prior name, i_max, prior_bright)."""
+    name = sec.get("prior", "bounded")
+    i_max = positive_float("i_max", sec.get("i_max", 1.0))
+    p_bright = sec.get("prior_bright")
+    if p_bright is not None and name != "two-level":
+        raise InputError(f"prior_bright = {p_bright!r} does not apply to prior {name!r}: it is "
+                         "used by the two-level prior; leave it unset")
+    build = {
+        "gaussian": lambda: Gaussian(mean=0.5 * i_max, sd=0.5 * i_max, scale=i_max),
+        "nonnegative": lambda: NonNegative(scale=i_max),
+        "bounded": lambda: Bounded(i_max=i_max),
+        "sparse": lambda: Sparse(i_max=i_max),
+        "two-level": lambda: TwoLevel(i_max=i_max,
+                                      p_bright=0.5 if p_bright is None else p_bright),
     }
-    return model, data, np.asarray(dirs, dtype=float), truth, opts
+    return build[name]()
+
+
+def _options(sec: dict[str, Any], prior: ImagingPrior, truth: np.ndarray | None,
+             k: int) -> ImageOptions:
+    """The sampler settings of the [image] section; the [scene]'s truth as the reference."""
+    keys = ("n_samples", "n_chains", "sampler", "neighbours", "window", "restarts")
+    reference = None
+    if isinstance(prior, TwoLevel) and truth is not None and truth.shape == (k,):
+        reference = truth  # the search reports the [scene]'s log posterior too
+    return ImageOptions(level=sec.get("level", 0.9), reference=reference,
+                        **{key: sec[key] for key in keys if sec.get(key) is not None})
 
 
 def run(args: argparse.Namespace) -> int:
-    model, data, dirs, truth, opts = _inputs(args)
+    model, data, dirs, truth, sec = _inputs(args)
+    prior = _prior(sec)
+    options = _options(sec, prior, truth, dirs.shape[0])
     if args.figure is not None:
         if model.kind != "lonlat":
             raise InputError("--figure draws sky maps and needs a sphere array")
         output_dir(args.figure.parent if str(args.figure.parent) else Path("."), "--figure")
-    if opts["prior"] == "two-level" and truth is not None and truth.shape == (dirs.shape[0],):
-        opts["reference"] = truth  # the search reports the [scene]'s log posterior too
-    res = image(model, data, dirs, rng=args.seed, **opts)
+    res = image(model, data, dirs, prior, options=options, rng=args.seed)
     payload: dict[str, Any] = {
         **res.summary(),
         "directions": res.directions,

@@ -1,19 +1,27 @@
 """Imaging mode: intensities of sources at known directions (Fig. 2 of the paper).
 
 With the directions fixed, Eq. 1 is linear in the intensities, ``s = A I +
-noise``; :func:`image` returns their posterior under a Gaussian (closed form,
-with evidence), nonnegative, bounded, sparse (spike-and-slab) or two-level
-prior, plus the design matrix's rank, conditioning and null space -- what the array cannot see;
-``n_samples=0`` returns the mode only, and ``prior="two-level"`` (each
-intensity 0 or i_max) the MAP scene of a local search.
+noise``; :func:`image` returns their posterior under a prior object --
+:class:`Gaussian` (closed form, with evidence), :class:`NonNegative`,
+:class:`Bounded`, :class:`Sparse` (spike-and-slab) or :class:`TwoLevel` (each
+intensity 0 or i_max; the MAP scene of a local search) -- with the sampler
+settings in one :class:`ImageOptions`, plus the design matrix's rank,
+conditioning and null space: what the array cannot see.
+
+    >>> from olsbayes.imaging import Bounded, ImageOptions, image
+    >>> res = image(model, data, directions, Bounded(i_max=2.0),
+    ...             options=ImageOptions(n_samples=400), rng=1)  # doctest: +SKIP
 """
 
 from .binary import BinaryMap, two_level_log_posterior, two_level_map
 from .binary_gibbs import BinaryGibbs, credible_sets, two_level_gibbs
-from .core import PRIORS, SAMPLERS, image
+from .core import image
 from .design import Design, analyse_design, check_directions, design_matrix
 from .eigen import eigen_gibbs
 from .gaussian import GaussianPosterior, gaussian_posterior
+from .neighbours import neighbour_groups, neighbour_pairs
+from .options import SAMPLERS, ImageOptions
+from .priors import PRIORS, Bounded, Gaussian, ImagingPrior, NonNegative, Sparse, TwoLevel
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import GibbsSamples, gibbs_intensities
 from .truncated import TruncatedSamples, sample_truncated_gaussian, truncnorm_1d
@@ -21,12 +29,21 @@ from .truncated import TruncatedSamples, sample_truncated_gaussian, truncnorm_1d
 __all__ = [
     "image",
     "ImageResult",
+    "ImageOptions",
+    "ImagingPrior",
+    "Gaussian",
+    "NonNegative",
+    "Bounded",
+    "Sparse",
+    "TwoLevel",
     "PRIORS",
     "SAMPLERS",
     "Design",
     "design_matrix",
     "analyse_design",
     "check_directions",
+    "neighbour_pairs",
+    "neighbour_groups",
     "GaussianPosterior",
     "gaussian_posterior",
     "TruncatedSamples",

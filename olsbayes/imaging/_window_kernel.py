@@ -1,7 +1,7 @@
 """Compiled (numba) sweep of the window moves of :mod:`olsbayes.imaging.window`.
 
-A window move costs O(N + |B|) arithmetic per chain but ~20 numpy calls, so
-in numpy the per-call overhead (~80 us a move) dominates.  This kernel runs
+A window move costs O(N + |B|) arithmetic per chain but about twenty small
+numpy calls, whose fixed per-call overhead would dominate; this kernel runs
 the same exact moves in compiled code.  Randomness comes in as pre-drawn
 uniforms (one per move and chain, from the caller's Generator): each 1-D draw
 is by inversion, so it is a deterministic function of its uniform.

@@ -176,19 +176,9 @@ def two_level_map(
         flip = (2.0 * d * c - d**2 * gd) * inv2s2 + np.where(s, -prior_gain, prior_gain)
         j = int(np.argmax(flip))
         best, move = flip[j], (j,)
-        if all_pairs:  # every 2-flip: F_k + F_l - d_k d_l G_kl / sigma^2
-            two = flip[:, None] + flip[None, :] - np.outer(d, d) * g * (2.0 * inv2s2)
-            np.fill_diagonal(two, -np.inf)
-            p = int(np.argmax(two))
-            if two.flat[p] > best:
-                best, move = two.flat[p], divmod(p, k)
-        elif pairs.shape[0]:
-            ok = s[pk] != s[pl]
-            dk = d[pk]
-            swap = np.where(ok, (2.0 * dk * (c[pk] - c[pl]) - dk**2 * pair_q) * inv2s2, -np.inf)
-            p = int(np.argmax(swap))
-            if swap[p] > best:
-                best, move = swap[p], (int(pk[p]), int(pl[p]))
+        gain, pair = _best_pair(flip, d, c, s, g, all_pairs, pairs, pair_q, inv2s2)
+        if gain > best:
+            best, move = gain, pair
         if groups is not None:
             gain, sub = _group_gains(flip, d, g, groups, masks, inv2s2)
             if gain > best:
@@ -212,6 +202,28 @@ def two_level_map(
         n_group_moves=int(n_group),
         local_optimum=local, reference_log_posterior=ref,
     )
+
+
+def _best_pair(flip, d, c, s, g, all_pairs, pairs, pair_q, inv2s2):
+    """Best 2-flip gain and its two sources; (-inf, ()) when there is no pair move.
+
+    ``all_pairs``: any 2-flip, gain ``F_k + F_l - d_k d_l G_kl / sigma^2``;
+    else the bright/dark swaps of the listed ``pairs`` (shape (P, 2), with
+    ``pair_q = |a_k - a_l|^2``).
+    """
+    if all_pairs:
+        two = flip[:, None] + flip[None, :] - np.outer(d, d) * g * (2.0 * inv2s2)
+        np.fill_diagonal(two, -np.inf)
+        p = int(np.argmax(two))
+        return two.flat[p], divmod(p, flip.shape[0])
+    if not pairs.shape[0]:
+        return -np.inf, ()
+    pk, pl = pairs[:, 0], pairs[:, 1]
+    ok = s[pk] != s[pl]
+    dk = d[pk]
+    swap = np.where(ok, (2.0 * dk * (c[pk] - c[pl]) - dk**2 * pair_q) * inv2s2, -np.inf)
+    p = int(np.argmax(swap))
+    return swap[p], (int(pk[p]), int(pl[p]))
 
 
 def _subset_masks(m: int, max_flips: int) -> np.ndarray:

@@ -1,73 +1,50 @@
-"""``image``: intensities of sources at known directions, with their posterior."""
+"""``image``: intensities of sources at known directions, with their posterior.
+
+With the directions fixed, Eq. 1 is linear, ``data = A I + noise``, with
+``A = design_matrix(model, directions)`` of shape (N, K).  :func:`image`
+validates every input, analyses the design (rank, conditioning, null space)
+and dispatches on the prior: the Gaussian posterior in closed form; for the
+others, the mode of the bounded (nonnegative) least squares, and from it the
+MAP search of the two-level prior, the mode alone (``n_samples=0``) or a
+sampler -- Gibbs, eigen-Gibbs or exact HMC -- started around it.
+"""
 
 from __future__ import annotations
 
-import numbers
 import warnings
 
 import numpy as np
 from scipy.optimize import lsq_linear
 from scipy.special import ndtri
 
-from .._validation import as_rng, finite_array, integer, positive_float
+from .._validation import as_rng, finite_array
 from ..errors import ConvergenceWarning, InputError, NullSpaceWarning
-from ..geometry import lonlat_to_unit
 from ..model import Model
 from .binary import sparse_relaxation, two_level_map
-from .design import analyse_design, check_directions, design_matrix
+from .design import Design, analyse_design, check_directions, design_matrix
 from .eigen import eigen_gibbs
 from .gaussian import gaussian_posterior
+from .neighbours import neighbour_groups, neighbour_pairs
+from .options import ImageOptions
+from .priors import Gaussian, ImagingPrior, Sparse, TwoLevel, as_prior
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import gibbs_intensities
 from .truncated import sample_truncated_gaussian
 from .window import window_moves
 
-__all__ = ["image", "PRIORS", "SAMPLERS"]
-
-PRIORS = ("gaussian", "nonnegative", "bounded", "sparse", "two-level")
-SAMPLERS = ("hmc", "gibbs", "eigen")
-
-
-def _check_options(prior, sampler, level, null_warn):
-    if not isinstance(prior, str) or prior.lower() not in PRIORS:
-        raise InputError(f"prior must be one of {', '.join(map(repr, PRIORS))}; got {prior!r}")
-    if not isinstance(sampler, str) or sampler.lower() not in SAMPLERS:
-        raise InputError(
-            f"sampler must be one of {', '.join(map(repr, SAMPLERS))}; got {sampler!r}"
-        )
-    if isinstance(level, bool) or not isinstance(level, numbers.Real) or not 0 < level < 1:
-        raise InputError(f"level must be a number in (0, 1); got {level!r}")
-    level = float(level)
-    null_warn = positive_float("null_warn", null_warn, upper=1.0)
-    return prior.lower(), sampler.lower(), level, null_warn
+__all__ = ["image"]
 
 
 def image(
     model: Model,
     data: np.ndarray,
     directions: np.ndarray,
-    prior: str = "bounded",
-    i_max: float = 1.0,
-    rng: np.random.Generator | int | None = None,
+    prior: ImagingPrior | str = "bounded",
     *,
-    level: float = 0.9,
-    n_samples: int | None = None,
-    n_chains: int = 4,
-    n_burn: int = 100,
-    sampler: str = "gibbs",
-    neighbours: int = 4,
-    window: int = 15,
-    prior_mean: float | None = None,
-    prior_sd: float | None = None,
-    null_warn: float = 0.1,
-    prior_bright: float = 0.5,
-    reference: np.ndarray | None = None,
-    restarts: int = 0,
+    options: ImageOptions | None = None,
+    rng: np.random.Generator | int | None = None,
 ) -> ImageResult:
     """Posterior of the intensities of sources at known directions.
-
-    With the directions fixed Eq. 1 is linear, ``data = A I + noise``, with
-    ``A = design_matrix(model, directions)`` of shape (N, K).
 
     Parameters
     ----------
@@ -78,236 +55,169 @@ def image(
     directions : array_like, shape (K, d) (or (K,) for a ring)
         Known source locations: ring angles, sphere (longitude, latitude) in
         rad, or plate positions.
-    prior : {"bounded", "nonnegative", "gaussian", "sparse", "two-level"}
-        ``"bounded"``: I uniform on [0, i_max]; ``"nonnegative"``: flat on
-        I >= 0; ``"gaussian"``: independent N(prior_mean, prior_sd^2), closed
-        form with evidence; ``"sparse"``: spike-and-slab
-        ``(1 - w) delta_0 + w U(0, i_max)`` with w ~ Beta(1, 1);
-        ``"two-level"``: each I is 0 or i_max, bright with probability
-        ``prior_bright`` -- MAP only (a local search, see
-        :mod:`olsbayes.imaging.binary`; ``result.search`` says how it ended).
-    i_max : float
-        Upper bound of the intensities (> 0); the scale of the Gaussian prior.
+    prior : Gaussian, NonNegative, Bounded, Sparse, TwoLevel or str
+        The intensity prior (:mod:`olsbayes.imaging.priors`), or its name in
+        ``PRIORS`` for its default settings (``"bounded"``: uniform on [0, 1]).
+    options : ImageOptions, optional
+        Sampler and search settings; every field set must be one the prior
+        uses (:mod:`olsbayes.imaging.options`).
     rng : Generator or seed, optional
-        Random stream of the samplers.
-    level : float
-        Credibility of the intervals (default 0.9).
-    n_samples, n_chains, n_burn : int
-        Draws kept per chain, chains, discarded trajectories/sweeps.
-        ``n_samples=0`` is the fast mode-only path for the box priors: the
-        posterior mode (bounded / nonnegative least squares) and the design
-        diagnostics, no sampling; ``mean`` is then the mode and ``sd``,
-        ``lower``, ``upper`` and ``rhat`` are NaN (no spread is computed: a
-        Gaussian approximation at a mode on the box walls would be wrong).
-        Default 200 (0 for ``"two-level"``, which has no sampler; the
-        Gaussian prior is closed form and ignores it; ``"sparse"`` needs >= 4).
-    sampler : {"gibbs", "hmc", "eigen"}
-        For the box priors: Gibbs (single-site, neighbour-pair and window moves),
-        ``"eigen"`` (single-site plus exact moves along every eigenvector of
-        ``A^T A``, which include the null space; :mod:`olsbayes.imaging.eigen`) or
-        exact HMC (Pakman & Paninski; exact but can need ~1e4 wall bounces per
-        trajectory on large ill-posed grids).  The sparse prior always uses Gibbs.
-    neighbours : int
-        Gibbs also trades intensity between each source and its ``neighbours``
-        nearest sources (exact moves along ``e_k - e_l``); 0 disables.
-    window : int
-        Box priors with Gibbs: each sweep also makes exact moves along the slow
-        eigen-directions of ``A_B^T A_B`` for every window ``B`` of a source
-        and its ``window`` nearest sources -- local patterns the array barely
-        sees (:mod:`olsbayes.imaging.window`); 0 disables.  Not used by the
-        sparse prior (its point mass at 0 is moved by the pair moves).
-    prior_mean, prior_sd : float, optional
-        Gaussian prior (default i_max / 2 and i_max / 2).
-    null_warn : float
-        Warn :class:`NullSpaceWarning` when nullity / K exceeds this fraction.
-    prior_bright : float in (0, 1)
-        ``"two-level"``: prior probability that a source is bright.
-    reference : array_like, shape (K,), optional
-        ``"two-level"``: a known scene (e.g. the truth of a simulation) whose
-        log posterior ``result.search`` reports next to the one found, so a
-        search failure (reference better than the scene found) is visible.
-    restarts : int
-        ``"two-level"``: extra searches, each from the L1 relaxation rounded at
-        random (a source starts bright with probability relaxed value / i_max,
-        drawn from ``rng``); the best local optimum is kept.  Fewer search
-        failures where the design has a large null space, ~20 ms CPU each on Fig. 2.
+        Random stream of the samplers and of the two-level restarts.
 
     Returns
     -------
     ImageResult
+        ``sampler`` names the path taken: ``"closed-form"`` (Gaussian),
+        ``"gibbs"``, ``"eigen"``, ``"hmc"``, ``"mode-only"`` (``n_samples=0``)
+        or ``"map-search"`` (TwoLevel).
 
     Raises
     ------
     InputError
-        Bad model, data length, directions (empty, wrong shape, latitude
-        outside [-pi/2, pi/2], unseen by every sub-sensor), i_max <= 0,
-        unknown prior or sampler names.
+        Before any work: bad model, data length or directions (empty, wrong
+        shape, latitude outside [-pi/2, pi/2], unseen by every sub-sensor), an
+        unknown prior, ``options`` not an ImageOptions, an option the prior
+        does not use, a reference of the wrong length.
     """
-    prior, sampler, level, null_warn = _check_options(prior, sampler, level, null_warn)
+    prior = as_prior(prior)
+    opts = _as_options(options).resolve(prior)
     loc = check_directions(model, directions)
+    y = _readings(model, data)
+    if opts.reference is not None and len(opts.reference) != loc.shape[0]:
+        raise InputError(f"reference must have shape ({loc.shape[0]},) (one intensity per "
+                         f"direction); got ({len(opts.reference)},)")
+    gen = as_rng(rng)
+    a = design_matrix(model, loc)
+    design = analyse_design(a, loc, model.sigma, prior.scale)
+    _warn_null_space(design, opts.null_warn)
+    if isinstance(prior, Gaussian):
+        return _gaussian(a, y, model.sigma, design, prior, opts.level)
+    mode = lsq_linear(a, y, bounds=(0.0, prior.upper), method="bvls").x
+    if isinstance(prior, TwoLevel):
+        return _two_level(model, loc, a, y, mode, design, prior, opts, gen)
+    if opts.n_samples == 0:
+        nan = np.full(mode.shape[0], np.nan)
+        return ImageResult(prior=prior.name, directions=design.directions, mean=mode, mode=mode,
+                           sd=nan, lower=nan, upper=nan, level=opts.level, design=design,
+                           rhat=float("nan"), sampler="mode-only")
+    return _sampled(model, loc, a, y, mode, design, prior, opts, gen)
+
+
+def _as_options(options: object) -> ImageOptions:
+    if options is None:
+        return ImageOptions()
+    if not isinstance(options, ImageOptions):
+        raise InputError("options must be an olsbayes.imaging.ImageOptions or None; got "
+                         f"{type(options).__name__}")
+    return options
+
+
+def _readings(model: Model, data: object) -> np.ndarray:
     y = finite_array("data", data, ndim=1)
     if y.shape[0] != model.n_sensors:
         raise InputError(
             f"data must have length {model.n_sensors} (one reading per sub-sensor); "
             f"got {y.shape[0]}"
         )
-    i_max = positive_float("i_max", i_max)
-    n_samples = _n_samples(prior, n_samples)
-    n_chains = integer("n_chains", n_chains, low=1)
-    n_burn = integer("n_burn", n_burn, low=0)
-    neighbours = integer("neighbours", neighbours, low=0)
-    window = integer("window", window, low=0)
-    gen = as_rng(rng)
-    a = design_matrix(model, loc)
-    design = analyse_design(a, loc, model.sigma, i_max)
-    k = loc.shape[0]
+    return y
+
+
+def _warn_null_space(design: Design, null_warn: float) -> None:
+    k = design.matrix.shape[1]
     if design.nullity > null_warn * k:
         warnings.warn(
             f"the design matrix has rank {design.rank} for {k} directions: {design.nullity} "
             "intensity combinations are invisible to the array and set by the prior alone "
             "(see result.design.null_space)",
             NullSpaceWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
-    if prior == "gaussian":
-        return _gaussian(a, y, model.sigma, design, i_max, level, prior_mean, prior_sd)
-    hi = np.inf if prior == "nonnegative" else i_max
-    mode = lsq_linear(a, y, bounds=(0.0, hi), method="bvls").x
-    if prior == "two-level":
-        restarts = integer("restarts", restarts, low=0)
-        return _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, reference,
-                          neighbours, restarts, gen)
-    if n_samples == 0:
-        nan = np.full(k, np.nan)
-        return ImageResult(prior=prior, directions=design.directions, mean=mode, mode=mode,
-                           sd=nan, lower=nan, upper=nan, level=level, design=design,
-                           rhat=float("nan"), sampler="mode-only")
-    x0 = _starts(mode, n_chains, hi, i_max, gen)
-    if prior == "sparse" or sampler == "gibbs":
-        spike = prior == "sparse"
-        if spike:  # dim sources of the jittered mode start in the spike
-            x0 = np.where(x0 < 0.1 * i_max, 0.0, x0)
-        moves = None
-        if window and not spike and k > 1:
-            moves = window_moves(a, neighbour_groups(model, loc, window), model.sigma)
-        run = gibbs_intensities(a, y, model.sigma, hi, x0, n_samples, gen, n_burn=n_burn,
-                                spike=spike, pairs=neighbour_pairs(model, loc, neighbours),
-                                windows=moves)
-        draws, acc, used = run.samples, 1.0, "gibbs"
-    elif sampler == "eigen":
-        run = eigen_gibbs(a.T @ a / model.sigma**2, a.T @ y / model.sigma**2, np.zeros(k),
-                          np.full(k, hi), x0, n_samples, gen, n_burn=n_burn)
-        draws, acc, used = run.samples, 1.0, "eigen"
-    else:
-        draws, acc = _hmc(a, y, model.sigma, hi, i_max, x0, n_samples, n_burn, gen, design)
-        used = "hmc"
-    return _from_draws(prior, draws, mode, design, level, hi, acc, used)
 
 
-def _n_samples(prior, n_samples):
-    if n_samples is None:
-        return 0 if prior == "two-level" else 200
-    n = integer("n_samples", n_samples, low=0)
-    if 0 < n < 4 or (n == 0 and prior == "sparse") or (n > 0 and prior == "two-level"):
-        need = {"sparse": ">= 4", "two-level": "0 (MAP only, no sampler)"}
-        need = need.get(prior, "0 (mode only) or >= 4")
-        raise InputError(f"n_samples must be {need} for prior {prior!r}; got {n_samples!r}")
-    return n
-
-
-def _two_level(model, loc, a, y, mode, design, level, i_max, prior_bright, reference, neighbours,
-               restarts, gen):
-    p = positive_float("prior_bright", prior_bright, upper=1.0)
-    if p >= 1.0:
-        raise InputError(f"prior_bright must be in (0, 1); got {prior_bright!r}")
-    ref = None
-    if reference is not None:
-        ref = finite_array("reference", reference, ndim=1)
-        if ref.shape != mode.shape:
-            raise InputError(f"reference must have shape {mode.shape}; got {ref.shape}")
-    groups = neighbour_groups(model, loc, 2 * neighbours) if neighbours else None
-    best = None
-    relaxed = sparse_relaxation(a, y, model.sigma, i_max)
-    starts = [mode, relaxed] + [
-        i_max * (gen.random(relaxed.shape[0]) < relaxed / i_max) for _ in range(restarts)
-    ]
-    for start in starts:
-        run = two_level_map(a, y, model.sigma, i_max, start, p_bright=p, groups=groups,
-                            reference=ref)
-        if best is None or run.log_posterior > best.log_posterior:
-            best = run
-    nan = np.full(mode.shape[0], np.nan)
-    return ImageResult(prior="two-level", directions=design.directions, mean=best.x,
-                       mode=best.x, sd=nan, lower=nan, upper=nan, level=level, design=design,
-                       rhat=float("nan"), sampler="map-search", search=best)
-
-
-def neighbour_pairs(model: Model, loc: np.ndarray, n: int) -> np.ndarray:
-    """Unique pairs (k, l), shape (P, 2), of each source with its n nearest sources."""
-    k = loc.shape[0]
-    n = min(n, k - 1)
-    if n <= 0:
-        return np.zeros((0, 2), dtype=int)
-    near = _nearest(model, loc, n)
-    pairs = np.sort(np.column_stack([np.repeat(np.arange(k), n), near.ravel()]), axis=1)
-    return np.unique(pairs, axis=0)
-
-
-def neighbour_groups(model: Model, loc: np.ndarray, n: int) -> np.ndarray:
-    """Each source with its n nearest sources, shape (K, min(n, K - 1) + 1)."""
-    n = min(n, loc.shape[0] - 1)
-    return np.column_stack([np.arange(loc.shape[0]), _nearest(model, loc, n)])
-
-
-def _nearest(model: Model, loc: np.ndarray, n: int) -> np.ndarray:
-    """Indices, shape (K, n), of each source's n nearest other sources."""
-    if model.kind == "position":
-        d2 = np.sum((loc[:, None, :] - loc[None, :, :]) ** 2, axis=-1)
-    else:  # angular distance through unit vectors (1 - cos)
-        if model.kind == "angle":
-            v = np.column_stack([np.cos(loc[:, 0]), np.sin(loc[:, 0])])
-        else:
-            v = lonlat_to_unit(loc[:, 0], loc[:, 1])
-        d2 = 1.0 - v @ v.T
-    np.fill_diagonal(d2, np.inf)
-    return np.argsort(d2, axis=1, kind="stable")[:, :n]
-
-
-def _starts(mode, n_chains, hi, i_max, gen):
-    """Chains start dispersed around the bounded least-squares mode, inside the box."""
-    jitter = 0.05 * i_max * gen.standard_normal((n_chains, mode.shape[0]))
-    x0 = np.abs(mode + jitter)
-    return np.minimum(x0, hi - 1e-6 * i_max) if np.isfinite(hi) else x0
-
-
-def _hmc(a, y, sigma, hi, i_max, x0, n_samples, n_burn, gen, design):
-    q = a.T @ a / sigma**2
-    b = a.T @ y / sigma**2
-    k = q.shape[0]
-    ridge = 0.0 if design.nullity == 0 and design.singular_values[-1] / sigma > 1e-3 / i_max else (
-        1.0 / i_max**2
-    )
-    run = sample_truncated_gaussian(
-        q, b, np.zeros(k), np.full(k, hi), x0, n_samples, gen, n_burn=n_burn, ridge=ridge,
-        centre=np.full(k, 0.5 * i_max),
-    )
-    return run.samples, run.acceptance
-
-
-def _gaussian(a, y, sigma, design, i_max, level, prior_mean, prior_sd):
+def _gaussian(a, y, sigma, design, prior, level):
     k = a.shape[1]
-    m0 = 0.5 * i_max
-    if prior_mean is not None:
-        m0 = float(finite_array("prior_mean", prior_mean, ndim=0))
-    s0 = 0.5 * i_max if prior_sd is None else positive_float("prior_sd", prior_sd)
-    post = gaussian_posterior(a, y, sigma, np.full(k, m0), np.full(k, s0))
+    post = gaussian_posterior(a, y, sigma, np.full(k, prior.mean), np.full(k, prior.sd))
     z = ndtri(0.5 + level / 2)
     sd = post.sd
     return ImageResult(
-        prior="gaussian", directions=design.directions, mean=post.mean, mode=post.mean, sd=sd,
+        prior=prior.name, directions=design.directions, mean=post.mean, mode=post.mean, sd=sd,
         lower=post.mean - z * sd, upper=post.mean + z * sd, level=level, design=design,
         log_evidence=post.log_evidence,
     )
+
+
+def _two_level(model, loc, a, y, mode, design, prior, opts, gen):
+    """Best local optimum of the MAP search from the rounded mode, L1 relaxation and restarts."""
+    i_max, ref = prior.i_max, opts.reference
+    ref = None if ref is None else np.asarray(ref, dtype=float)
+    groups = neighbour_groups(model, loc, 2 * opts.neighbours) if opts.neighbours else None
+    best = None
+    relaxed = sparse_relaxation(a, y, model.sigma, i_max)
+    starts = [mode, relaxed] + [
+        i_max * (gen.random(relaxed.shape[0]) < relaxed / i_max) for _ in range(opts.restarts)
+    ]
+    for start in starts:
+        run = two_level_map(a, y, model.sigma, i_max, start, p_bright=prior.p_bright,
+                            groups=groups, reference=ref)
+        if best is None or run.log_posterior > best.log_posterior:
+            best = run
+    nan = np.full(mode.shape[0], np.nan)
+    return ImageResult(prior=prior.name, directions=design.directions, mean=best.x,
+                       mode=best.x, sd=nan, lower=nan, upper=nan, level=opts.level,
+                       design=design, rhat=float("nan"), sampler="map-search", search=best)
+
+
+def _sampled(model, loc, a, y, mode, design, prior, opts, gen):
+    """Draws of the box / spike-and-slab posterior from chains started around the mode."""
+    hi, scale, sigma = prior.upper, prior.scale, model.sigma
+    x0 = _starts(mode, opts.n_chains, hi, scale, gen)
+    acc = 1.0
+    if opts.sampler == "gibbs":
+        draws = _gibbs(model, loc, a, y, x0, prior, opts, gen)
+    elif opts.sampler == "eigen":
+        k = a.shape[1]
+        run = eigen_gibbs(a.T @ a / sigma**2, a.T @ y / sigma**2, np.zeros(k), np.full(k, hi),
+                          x0, opts.n_samples, gen, n_burn=opts.n_burn)
+        draws = run.samples
+    else:
+        draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen, design)
+    return _from_draws(prior.name, draws, mode, design, opts.level, hi, acc, opts.sampler)
+
+
+def _gibbs(model, loc, a, y, x0, prior, opts, gen):
+    spike = isinstance(prior, Sparse)
+    extra = {}
+    if spike:  # dim sources of the jittered mode start in the spike
+        x0 = np.where(x0 < 0.1 * prior.i_max, 0.0, x0)
+        extra["w_prior"] = prior.weight_prior
+    elif opts.window and a.shape[1] > 1:
+        extra["windows"] = window_moves(a, neighbour_groups(model, loc, opts.window),
+                                        model.sigma)
+    run = gibbs_intensities(a, y, model.sigma, prior.upper, x0, opts.n_samples, gen,
+                            n_burn=opts.n_burn, spike=spike,
+                            pairs=neighbour_pairs(model, loc, opts.neighbours), **extra)
+    return run.samples
+
+
+def _starts(mode, n_chains, hi, scale, gen):
+    """Chains start dispersed around the bounded least-squares mode, inside the box."""
+    jitter = 0.05 * scale * gen.standard_normal((n_chains, mode.shape[0]))
+    x0 = np.abs(mode + jitter)
+    return np.minimum(x0, hi - 1e-6 * scale) if np.isfinite(hi) else x0
+
+
+def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design):
+    """Exact HMC; a ridge surrogate (then Metropolis-corrected) where A^T A is near singular."""
+    q = a.T @ a / sigma**2
+    b = a.T @ y / sigma**2
+    k = q.shape[0]
+    full = design.nullity == 0 and design.singular_values[-1] / sigma > 1e-3 / scale
+    ridge = 0.0 if full else 1.0 / scale**2
+    run = sample_truncated_gaussian(
+        q, b, np.zeros(k), np.full(k, hi), x0, n_samples, gen, n_burn=n_burn, ridge=ridge,
+        centre=np.full(k, 0.5 * scale),
+    )
+    return run.samples, run.acceptance
 
 
 def _from_draws(prior, draws, mode, design, level, hi, acc, used):
@@ -321,7 +231,7 @@ def _from_draws(prior, draws, mode, design, level, hi, acc, used):
             f"the {used} chains have not mixed: largest split R-hat {rhat:.3g} > 1.1; "
             "increase n_samples/n_burn and treat sd and intervals with care",
             ConvergenceWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
     p_bright = np.mean(flat > 0, axis=0) if prior == "sparse" else None
     return ImageResult(

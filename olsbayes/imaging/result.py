@@ -71,7 +71,8 @@ class ImageResult:
     Attributes
     ----------
     prior : str
-        ``"gaussian"``, ``"nonnegative"``, ``"bounded"`` or ``"sparse"``.
+        Name of the prior: ``"gaussian"``, ``"nonnegative"``, ``"bounded"``,
+        ``"sparse"`` or ``"two-level"``.
     directions : ndarray, shape (K, d)
         Source locations (rad; length units for near-source positions).
     mean : ndarray, shape (K,)
@@ -102,7 +103,7 @@ class ImageResult:
     acceptance : float
         HMC acceptance rate (1 for Gibbs and the closed form).
     sampler : str
-        ``"closed-form"``, ``"hmc"``, ``"gibbs"``, ``"mode-only"`` (box priors
+        ``"closed-form"``, ``"hmc"``, ``"gibbs"``, ``"eigen"``, ``"mode-only"`` (box priors
         with ``n_samples=0``: mean = mode, sd/intervals/rhat NaN) or
         ``"map-search"`` (two-level prior: mean = mode = the MAP scene found,
         sd/intervals/rhat NaN).
