@@ -88,11 +88,12 @@ def _nested(model: Model, data: np.ndarray, k: int, settings: dict, rng) -> tupl
 
 
 def _posterior(model: Model, data: np.ndarray, k: int, steps: int, settings: dict, rng) -> tuple:
-    from ..posterior import sample
+    from ..posterior import SamplerOptions, sample
 
-    res = sample(model, data, k, priors=_priors(model, settings, k), rng=rng, progress=False,
-                 max_steps=steps, tau_multiple=1e9, check_every=steps,
-                 n_walkers=settings.get("n_walkers"))
+    opts = SamplerOptions(n_walkers=settings.get("n_walkers"), max_steps=steps,
+                          tau_multiple=1e9, check_every=steps)
+    res = sample(model, data, k, priors=_priors(model, settings, k), options=opts, rng=rng,
+                 progress=False)
     # a fixed chain length is the point here: report it in autocorrelation times
     return res.estimate, res.n_steps >= 50 * float(np.max(res.tau)), res.n_evaluations
 
