@@ -24,7 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_rng, integer
+from ..bounds import bound_covariance, covariance_root
 from ..model import Model
+from ..posterior._arviz import from_dict, loo
 
 __all__ = ["bic", "aic", "LOOResult", "loo_compare"]
 
@@ -84,9 +86,6 @@ def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000, *,
         Draws from each K's Laplace posterior (4 chains of n_draws / 4).
     rng : Generator or seed
     """
-    from ..bounds import bound_covariance, covariance_root
-    from ..posterior._arviz import from_dict, loo
-
     data = model.check_data(data)
     n_draws = integer("n_draws", n_draws, low=100)
     gen = as_rng(rng)
