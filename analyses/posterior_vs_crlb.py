@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from olsbayes import Model, OlsBayesWarning, Ring
-from olsbayes.posterior import sample
+from olsbayes.posterior import SamplerOptions, sample
 from olsbayes.priors import default_priors
 
 TRUTH = np.array([0.3, 1.0, 0.3 + np.pi, 0.2])
@@ -35,7 +35,8 @@ def one_run(sigma: float, rep: int) -> list[dict]:
     prior = default_priors(model, 2, i_max=3.0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OlsBayesWarning)
-        res = sample(model, data, 2, priors=prior, rng=rep, progress=False, max_steps=8000)
+        res = sample(model, data, 2, priors=prior, options=SamplerOptions(max_steps=8000),
+                     rng=rep, progress=False)
     check = res.crlb_check()
     note = "; ".join(sorted({type(w.message).__name__ for w in caught}))
     return [{"sigma": sigma, "rep": rep, "param": n, "ratio": check.ratio[j],

@@ -56,7 +56,7 @@ import numpy as np
 from olsbayes import Model, Ring, crlb_eq4
 from olsbayes.bounds import bound_covariance
 from olsbayes.errors import OlsBayesWarning
-from olsbayes.select import select_k
+from olsbayes.select import SelectOptions, select_k
 
 N = 30
 H = 2 * np.pi / N
@@ -89,7 +89,7 @@ def run_point(model: Model, sep: float, trials: int, seed: int, fit_method: str 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OlsBayesWarning)
             res = select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX,
-                           fit_kwargs={"method": fit_method})
+                           options=SelectOptions(ml_method=fit_method))
         det.append(res.best == 2)
         z1, z2 = res[1].log_evidence, res[2].log_evidence
         lbf.append(z2 - z1 if np.isfinite(z2) else -np.inf)
@@ -121,7 +121,7 @@ def false_alarms(model: Model, trials: int, seed: int, fit_method: str = "exact"
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OlsBayesWarning)
             hits += select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX,
-                             fit_kwargs={"method": fit_method}).best == 2
+                             options=SelectOptions(ml_method=fit_method)).best == 2
     return hits / trials
 
 

@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 
 from olsbayes import ConvergenceWarning, Model, Ring  # noqa: E402
 from olsbayes.ml import fit_ml  # noqa: E402
-from olsbayes.posterior import sample  # noqa: E402
+from olsbayes.posterior import SamplerOptions, sample  # noqa: E402
 from olsbayes.priors import default_priors  # noqa: E402
 
 TRUTH = np.array([0.3, 1.0, 0.3 + np.pi, 0.2])
@@ -54,7 +54,8 @@ def run_case(name, model, data, prior, start, seed, **kw) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConvergenceWarning)
         cpu0, wall0 = time.process_time(), time.perf_counter()
-        res = sample(model, data, 2, priors=prior, start=start, rng=seed, progress=False, **kw)
+        res = sample(model, data, 2, priors=prior, start=start, options=SamplerOptions(**kw),
+                     rng=seed, progress=False)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     table = res.summary()
     rhat = float(table["r_hat"].max())
@@ -82,8 +83,8 @@ def main() -> None:
     model = Model(Ring(30), sigma=0.01)
     n_sets = 5 if args.full else 1
     warm = model.simulate(TRUTH, rng=999)  # warm-up: imports and caches, not timed
-    sample(model, warm, 2, priors=default_priors(model, 2, i_max=2.0), start=TRUTH, rng=0,
-           progress=False, n_steps=300).summary()
+    sample(model, warm, 2, priors=default_priors(model, 2, i_max=2.0), start=TRUTH,
+           options=SamplerOptions(n_steps=300), rng=0, progress=False).summary()
     rows = []
     for rep in range(n_sets):
         data = model.simulate(TRUTH, rng=1000 + rep)

@@ -4,7 +4,7 @@ Ring N = 30, sigma = 0.01, intensities U(0, 2) prior (i_max = 2), K_max = 4.
 
 1. Laplace selection (``select_k(method="laplace")``) on well-separated scenes with
    K = 0..4: median wall time per selection (target <= 50 ms), split into the ML
-   fits (the ML engineer's ``fit_ml`` for K = 1..4 plus the cross-K repair) and
+   fits (``fit_ml`` for K = 1..4 plus the cross-K repair) and
    the evidence work proper (Fisher, Laplace, diagnostics).
 2. Nested sampling (dynesty rslice, maxcall-capped) vs Laplace for every K of a
    well-separated two-source scene: log Z +- err, |difference| (target <= 0.3
@@ -34,7 +34,7 @@ import numpy as np
 
 from olsbayes import Model, Ring
 from olsbayes.priors import default_priors
-from olsbayes.select import select_k
+from olsbayes.select import NestedOptions, SelectOptions, select_k
 from olsbayes.select.engine import laplace_work, mixture_work, noise_work
 from olsbayes.select.fits import fit_all
 from olsbayes.select.importance import importance_log_evidence
@@ -76,7 +76,7 @@ def laplace_timing(model, reps: int) -> list[dict]:
             right += res.best == k
             streams = [g.spawn(2)[0] for g in np.random.default_rng(r).spawn(5)]
             t0 = time.perf_counter()
-            fitted = fit_all(model, d, 4, streams)
+            fitted = fit_all(model, d, 4, rngs=streams)
             fits.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
             noise_work(model, d)
@@ -84,8 +84,8 @@ def laplace_timing(model, reps: int) -> list[dict]:
                 w = laplace_work(model, j, fitted[j], prior[j], None)
                 if w.reasons or not np.isfinite(w.value):
                     lower = [fitted[i][1] for i in (j - 1, j - 2, j - 3) if i >= 1]
-                    mixture_work(model, d, w, prior[j], lower, np.random.default_rng([r, j]),
-                                 500)
+                    mixture_work(model, d, w, prior[j], lower, 500,
+                                 rng=np.random.default_rng([r, j]))
             evid.append(time.perf_counter() - t0)
         rows.append({"k": k, "total_ms": 1e3 * np.median(tot), "cpu_ms": 1e3 * np.median(cpu),
                      "fits_ms": 1e3 * np.median(fits),
@@ -93,14 +93,15 @@ def laplace_timing(model, reps: int) -> list[dict]:
     return rows
 
 
-def nested_vs_laplace(model, seed: int, maxcall: int, nlive: int | None) -> list[dict]:
+def nested_vs_laplace(model, seed: int, maxcall: int, n_live: int | None) -> list[dict]:
     x = np.array(SCENES[2], float).ravel()
     d = model.simulate(x, np.random.default_rng([2, 0]))
     t0 = time.perf_counter()
     lap = select_k(model, d, k_max=4, method="laplace", rng=seed, i_max=2.0)
     t_lap = time.perf_counter() - t0
     # the evidence step alone (ML fits excluded): Laplace at the same ML points
-    fitted = fit_all(model, d, 4, [g.spawn(2)[0] for g in np.random.default_rng(seed).spawn(5)])
+    fitted = fit_all(model, d, 4,
+                     rngs=[g.spawn(2)[0] for g in np.random.default_rng(seed).spawn(5)])
     t_ev = []
     for k in range(1, 5):
         prior = default_priors(model, k, i_max=2.0)
@@ -113,8 +114,9 @@ def nested_vs_laplace(model, seed: int, maxcall: int, nlive: int | None) -> list
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         t0 = time.perf_counter()
-        nes = select_k(model, d, k_max=4, method="nested", rng=seed, i_max=2.0, maxcall=maxcall,
-                       nlive=nlive, dlogz=0.1)
+        nested = NestedOptions(maxcall=maxcall, n_live=n_live, dlogz=0.1)
+        nes = select_k(model, d, k_max=4, method="nested", rng=seed, i_max=2.0,
+                       options=SelectOptions(nested=nested))
         t_nes = time.perf_counter() - t0
     rows = []
     for a, b in zip(lap.evidences, nes.evidences):
@@ -144,12 +146,13 @@ def hard_cases(model, seed: int, maxcall: int) -> list[dict]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             t0 = time.perf_counter()
+            opts = SelectOptions(nested=NestedOptions(maxcall=maxcall))
             auto = select_k(model, d, k_max=k_max, method="auto", rng=seed, i_max=2.0,
-                            maxcall=maxcall)
+                            options=opts)
             t_auto = time.perf_counter() - t0
             t0 = time.perf_counter()
             nes = select_k(model, d, k_max=k_max, method="nested", rng=seed, i_max=2.0,
-                           maxcall=maxcall)
+                           options=opts)
             t_nes = time.perf_counter() - t0
         # nested sampling of just the K auto escalated (same seeds: the same runs); likelihood
         # calls are the load-independent cost (ML-fit evaluations + nested-sampling calls)
@@ -173,7 +176,7 @@ def main(argv=None) -> int:
     ap.add_argument("--full", action="store_true", help="more repeats")
     ap.add_argument("--out", type=Path, default=Path("out/select_speed"))
     ap.add_argument("--parts", default="123", help="which parts to run, e.g. 2")
-    ap.add_argument("--nlive", type=int, default=None,
+    ap.add_argument("--n-live", type=int, default=None,
                     help="dynesty live points in part 2 (default max(100, 25 P))")
     ap.add_argument("--maxcall", type=int, default=150_000,
                     help="likelihood-call cap per nested run (over-complete K often hit it)")
@@ -216,9 +219,9 @@ def part1(model, reps, say) -> list[dict]:
 
 
 def part2(model, args, say) -> list[dict]:
-    say(f"2. Nested (dynesty rslice, nlive={args.nlive or 'default'}, dlogz=0.1, "
+    say(f"2. Nested (dynesty rslice, n_live={args.n_live or 'default'}, dlogz=0.1, "
         f"maxcall={args.maxcall}) vs Laplace, well-separated K=2 scene")
-    nvl = nested_vs_laplace(model, 0, args.maxcall, args.nlive)
+    nvl = nested_vs_laplace(model, 0, args.maxcall, args.n_live)
     say(f"{'K':>2} {'Laplace':>12} {'nested':>12} {'+-':>6} {'diff':>7} {'IS - Lapl.':>11} "
         f"{'+-':>6} {'trusted':>7} {'calls':>7} {'nested s':>8} {'Lapl. ms':>8} {'ratio':>7}")
     for r in nvl[:-1]:

@@ -37,6 +37,12 @@ def _sample(data=DATA, **kw):
     return sample(MODEL, data, 2, progress=False, **kw)
 
 
+def _sampler_options(**kw):
+    from olsbayes.posterior import SamplerOptions
+
+    return SamplerOptions(**kw)
+
+
 def _select(**kw):
     from olsbayes.select import select_k
 
@@ -112,8 +118,9 @@ API_CASES = [
     ("half-normal scale < 0", lambda: _priors().HalfNormal(-1.0), "scale"),
     ("count prior k_max < 0", lambda: _priors().UniformCount(-1), "k_max"),
     ("default priors without i_max", lambda: _priors().default_priors(MODEL, 1), "i_max"),
-    ("posterior too few walkers", lambda: _sample(n_walkers=3), "n_walkers"),
-    ("posterior unknown moves", lambda: _sample(moves="hmc"), "moves"),
+    ("posterior too few walkers", lambda: _sample(options=_sampler_options(n_walkers=3)),
+     "n_walkers"),
+    ("posterior unknown moves", lambda: _sampler_options(moves="hmc"), "moves"),
     ("posterior unknown start", lambda: _sample(start="middle"), "start"),
     ("posterior 2-D data", lambda: _sample(data=np.vstack([DATA, DATA])), "data"),
     ("select unknown method", lambda: _select(method="waic"), "method"),

@@ -5,7 +5,7 @@ import pytest
 from scipy import stats
 
 from olsbayes import ConvergenceWarning, InputError, Model, Plate, Ring, Sphere
-from olsbayes.posterior import sample
+from olsbayes.posterior import SamplerOptions, sample
 from olsbayes.posterior._labels import relabel
 from olsbayes.priors import HalfNormal, ScenePrior, Uniform, default_priors
 
@@ -21,13 +21,15 @@ def ring_case():
 @pytest.fixture(scope="module")
 def ring_result(ring_case):
     model, truth, data = ring_case
-    return sample(model, data, 2, start=truth, rng=1, progress=False, rhat_max=None)
+    return sample(model, data, 2, start=truth, rng=1, progress=False,
+                  options=SamplerOptions(rhat_max=None))
 
 
 def _prior_only_pvalues(model, prior, k, rng):
     """KS p-values of every parameter of a likelihood-free run against its prior marginal."""
+    opts = SamplerOptions(use_likelihood=False, n_steps=800, relabel_sources=False)
     res = sample(model, np.zeros(model.n_sensors), k, priors=prior, start="prior", rng=rng,
-                 progress=False, use_likelihood=False, n_steps=800, relabel_sources=False)
+                 progress=False, options=opts)
     draws = res.samples  # (W, D, P), raw exchangeable labels
     step = int(np.ceil(2 * max(float(np.max(res.tau)), 1.0)))
     # nearly independent draws: every 2 tau-th step of every 4th walker
@@ -111,7 +113,7 @@ def test_crlb_reasons_tell_resolution_limit_from_within_source_correlation():
     truth = np.array([-0.7, -0.5, 1.0, 1.0, 0.8, 0.6, 1.2, 0.7])
     data = plate.simulate(truth, rng=3)
     res = sample(plate, data, 2, priors=default_priors(plate, 2, i_max=3.0), start=truth,
-                 rng=1, progress=False, n_steps=300)
+                 rng=1, progress=False, options=SamplerOptions(n_steps=300))
     corr = res.crlb_cov / np.outer(res.crlb_std, res.crlb_std)
     assert abs(corr[2, 3]) > 0.9 and abs(corr[3, 7]) > 0.9 and abs(corr[2, 7]) < 0.9
     reasons = dict(zip(res.names, res.crlb_check().reasons))
@@ -124,7 +126,8 @@ def test_crlb_reasons_tell_resolution_limit_from_within_source_correlation():
 def test_short_run_has_no_arviz_shape_warning(ring_case):
     """More walkers than stored draws is legitimate: no ArviZ shape warning (-> error here)."""
     model, truth, data = ring_case
-    res = sample(model, data, 1, start=truth[:2], rng=0, progress=False, n_steps=40)
+    res = sample(model, data, 1, start=truth[:2], rng=0, progress=False,
+                 options=SamplerOptions(n_steps=40))
     assert res.samples.shape[0] > res.samples.shape[1]
     assert np.all(np.isfinite(res.summary()["sd"]))
 
@@ -175,9 +178,10 @@ def test_sphere_and_plate_posteriors(geometry):
 
 def test_same_rng_same_chains(ring_case):
     model, truth, data = ring_case
-    a = sample(model, data, 1, start=truth[:2], rng=7, progress=False, n_steps=300)
+    opts = SamplerOptions(n_steps=300)
+    a = sample(model, data, 1, start=truth[:2], rng=7, progress=False, options=opts)
     b = sample(model, data, 1, start=truth[:2], rng=np.random.default_rng(7), progress=False,
-               n_steps=300)
+               options=opts)
     np.testing.assert_array_equal(a.samples, b.samples)
 
 
@@ -187,18 +191,20 @@ def test_ml_seeded_start(ring_case):
 
     model, truth, data = ring_case
     ml = fit_ml(model, data, 2)
-    res = sample(model, data, 2, start=ml, rng=3, progress=False, n_steps=200)
+    opts = SamplerOptions(n_steps=200)
+    res = sample(model, data, 2, start=ml, rng=3, progress=False, options=opts)
     np.testing.assert_array_equal(res.start, ml.params)
-    auto = sample(model, data, 2, rng=3, progress=False, n_steps=200)
+    auto = sample(model, data, 2, rng=3, progress=False, options=opts)
     np.testing.assert_allclose(auto.start, ml.params, atol=1e-6)
     with pytest.raises(InputError, match="MLResult"):
-        sample(model, data, 1, start=ml, progress=False, n_steps=10)
+        sample(model, data, 1, start=ml, progress=False, options=opts)
 
 
 def test_step_limit_warns(ring_case):
     model, truth, data = ring_case
     with pytest.warns(ConvergenceWarning, match="max_steps=200"):
-        res = sample(model, data, 1, start=truth[:2], rng=2, progress=False, max_steps=200)
+        res = sample(model, data, 1, start=truth[:2], rng=2, progress=False,
+                     options=SamplerOptions(max_steps=200))
     assert not res.converged
 
 
@@ -215,7 +221,7 @@ def test_label_switching_near_pi():
     start = np.concatenate([truth + 0.005 * gen.standard_normal((16, 4)),
                             swapped + 0.005 * gen.standard_normal((16, 4))])
     res = sample(model, data, 2, priors=prior, start=start, rng=5, progress=False,
-                 n_steps=1500)
+                 options=SamplerOptions(n_steps=1500))
     assert res.switch_fraction > 0.2  # the raw draws swap labels
     x = res.flat_samples
     from olsbayes.circular import wrap_angle
@@ -236,9 +242,11 @@ def test_tau_follows_the_relabelled_parameters(ring_case):
     model, truth, data = ring_case
     # bright source first; the canonical (cyclic) order puts the faint one first here,
     # as test_high_snr_posterior_width_matches_crlb checks
-    kw = dict(start=truth, rng=8, progress=False, n_steps=400)
-    raw = sample(model, data, 2, relabel_sources=False, **kw)
-    fixed = sample(model, data, 2, **kw)  # same rng: the same chains, relabelled afterwards
+    kw = dict(start=truth, rng=8, progress=False)
+    raw = sample(model, data, 2, options=SamplerOptions(n_steps=400, relabel_sources=False),
+                 **kw)
+    # same rng: the same chains, relabelled afterwards
+    fixed = sample(model, data, 2, options=SamplerOptions(n_steps=400), **kw)
     assert fixed.switch_fraction == 0.0
     np.testing.assert_allclose(fixed.estimate[[0, 2]] % (2 * np.pi),
                                raw.estimate[[2, 0]] % (2 * np.pi), atol=1e-12)
@@ -283,7 +291,7 @@ def test_relabel_on_the_sphere():
 def test_bad_input(ring_case):
     model, truth, data = ring_case
     with pytest.raises(InputError, match="n_walkers"):
-        sample(model, data, 2, start=truth, n_walkers=7, progress=False)
+        sample(model, data, 2, start=truth, options=SamplerOptions(n_walkers=7), progress=False)
     with pytest.raises(InputError, match="start"):
         sample(model, data, 2, start=np.array([0.3, np.nan, 2.0, 0.2]), progress=False)
     prior = ScenePrior(model, 2, Uniform(0.0, 0.5))
@@ -300,3 +308,60 @@ def test_bad_input(ring_case):
         sample(model, data, 2, start=np.tile(truth, (32, 1)), progress=False)
     with pytest.raises(InputError, match="data"):
         sample(model, data[:10], 2, start=truth, progress=False)
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("n_walkers", 1), ("n_walkers", 8.0), ("max_steps", 0), ("n_steps", 0), ("n_steps", 2.5),
+    ("tau_multiple", 0.0), ("tau_multiple", np.inf), ("rhat_max", -1.01), ("rhat_max", "1.01"),
+    ("check_every", 0), ("n_burn", -1), ("thin", 0), ("moves", "hmc"), ("moves", []),
+    ("moves", [("de", 1.0)]), ("vectorize", "yes"), ("relabel_sources", 1),
+    ("use_likelihood", None),
+])
+def test_sampler_options_refuse_bad_values_naming_the_field(field, value):
+    with pytest.raises(InputError, match=field):
+        SamplerOptions(**{field: value})
+
+
+def test_sampler_options_accept_emcee_moves():
+    import emcee
+
+    de = emcee.moves.DEMove()
+    assert SamplerOptions(moves=de).moves is de
+    mix = [(emcee.moves.DEMove(), 0.7), (emcee.moves.StretchMove(), 0.3)]
+    assert SamplerOptions(moves=mix).moves is mix
+    with pytest.raises(InputError, match="moves"):
+        SamplerOptions(moves=[(de, 0.0)])
+
+
+def test_bad_arguments_are_refused_before_the_ml_fit(ring_case, monkeypatch):
+    """start=None fits ML first: every argument is checked before that fit runs."""
+    import olsbayes.ml
+    import olsbayes.posterior._start
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the ML fit ran before the arguments were checked")
+
+    monkeypatch.setattr(olsbayes.ml, "fit_ml", no_fit)
+    monkeypatch.setattr(olsbayes.posterior._start, "fit_ml", no_fit)
+    model, truth, data = ring_case
+    cases = [
+        ({"options": SamplerOptions(n_walkers=7)}, "n_walkers must be >= 2 \\* n_params = 8"),
+        ({"options": {"moves": "hmc"}}, "options must be"),
+        ({"start": "middle"}, "start"),
+        ({"priors": "flat"}, "priors"),
+        ({"rng": -1}, "rng"),
+        ({"progress": "no"}, "progress"),
+    ]
+    for kwargs, match in cases:
+        with pytest.raises(InputError, match=match):
+            sample(model, data, 2, **kwargs)
+    with pytest.raises(InputError, match="moves"):
+        sample(model, data, 2, options=SamplerOptions(moves="hmc"))
+    with pytest.raises(InputError, match="rhat_max"):
+        sample(model, data, 2, options=SamplerOptions(rhat_max=0.0))
+
+
+def test_rng_and_options_are_keyword_only(ring_case):
+    model, truth, data = ring_case
+    with pytest.raises(TypeError):
+        sample(model, data, 2, None, truth)  # priors, start positionally

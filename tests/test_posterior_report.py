@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from olsbayes import Model, Ring, Scene
-from olsbayes.posterior import sample, write_report
+from olsbayes.posterior import SamplerOptions, sample, write_report
 from olsbayes.posterior._arviz import from_netcdf
 
 
@@ -18,7 +18,9 @@ def small_result():
     model = Model(Ring(16), sigma=0.02)
     truth = np.array([np.pi - 0.02, 1.0])  # a source at the +-pi edge
     data = model.simulate(truth, rng=11)
-    return sample(model, data, 1, start=truth, rng=12, progress=False, n_steps=400), truth
+    res = sample(model, data, 1, start=truth, rng=12, progress=False,
+                 options=SamplerOptions(n_steps=400))
+    return res, truth
 
 
 def test_report_folder_has_every_file(small_result, tmp_path):

@@ -12,7 +12,11 @@ from olsbayes import Model, Ring
 from olsbayes.errors import EvidenceWarning, InputError
 from olsbayes.priors import PoissonCount, ScenePrior, Uniform, default_priors
 from olsbayes.select import (
+    DecisionOptions,
+    LaplaceOptions,
+    NestedOptions,
     SelectionResult,
+    SelectOptions,
     model_laplace,
     nested_log_evidence,
     select_k,
@@ -58,7 +62,7 @@ def test_laplace_and_nested_agree_on_a_well_separated_two_source_scene():
     assert float(log_z) == pytest.approx(ev.log_evidence)
     out = nested_log_evidence(scalar_log_likelihood(MODEL, data), prior.ppf, 4,
                               periodic=prior.periodic_indices, rng=1, maxcall=60_000,
-                              nlive=40, dlogz=1.0)
+                              n_live=40, dlogz=1.0)
     assert out.converged
     assert abs(out.log_evidence - ev.log_evidence) < 3 * out.error + 0.5
 
@@ -72,14 +76,15 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
     data = MODEL.simulate(np.array([0.3, 0.02]), np.random.default_rng(4))
     with pytest.warns(EvidenceWarning, match="not to be trusted"):
         bare = select_k(MODEL, data, k_max=1, method="laplace", rng=3, i_max=2.0,
-                        importance_draws=0)
+                        options=SelectOptions(laplace=LaplaceOptions(importance_draws=0)))
     assert bare.best == 1 and not bare[1].trusted and "weak source" in bare[1].reasons[0]
     lap = select_k(MODEL, data, k_max=1, method="laplace", rng=3, i_max=2.0)
     assert lap.best == 1 and not lap[1].trusted and "weak source" in lap[1].reasons[0]
     assert lap[1].method == "importance" and 0 < lap[1].error < 0.15
     assert lap[1].laplace == pytest.approx(bare[1].log_evidence)
-    res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0, nlive=50,
-                   maxcall=40_000, dlogz=0.5)
+    nested = NestedOptions(n_live=50, maxcall=40_000, dlogz=0.5)
+    res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0,
+                   options=SelectOptions(nested=nested))
     assert list(res.escalated) == [1] and "weak source" in res.escalated[1]
     assert res[1].method == "nested" and 0 < res[1].error < 1
     assert res[1].laplace == pytest.approx(bare[1].log_evidence)
@@ -95,8 +100,8 @@ def test_a_nested_run_stopped_by_the_call_cap_is_flagged_in_the_table():
 
     data = MODEL.simulate(np.array([0.3, 0.02]), np.random.default_rng(4))
     with pytest.warns(ConvergenceWarning, match="maxcall"):
-        res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0, nlive=50,
-                       maxcall=1000)
+        res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0,
+                       options=SelectOptions(nested=NestedOptions(n_live=50, maxcall=1000)))
     assert list(res.escalated) == [1] and not res[1].trusted
     assert res[1].reasons[-1] == "nested sampling stopped at maxcall=1000"
     row = res.table().splitlines()[3]
@@ -130,11 +135,11 @@ def test_information_criteria_are_penalised_log_likelihoods():
 
 
 def test_a_tie_is_broken_towards_the_smaller_k():
-    from olsbayes.select.select import _choose
+    from olsbayes.select.decide import choose
 
-    best, notes = _choose(np.array([-np.inf, 10.0, 10.5, 3.0]), tie=math.log(3))
+    best, notes = choose(np.array([-np.inf, 10.0, 10.5, 3.0]), tie=math.log(3))
     assert best == 1 and "smaller" in notes[0]
-    best, notes = _choose(np.array([-np.inf, 10.0, 12.0]), tie=math.log(3))
+    best, notes = choose(np.array([-np.inf, 10.0, 12.0]), tie=math.log(3))
     assert best == 2 and notes == []
 
 
@@ -161,8 +166,9 @@ def test_user_priors_by_mapping_and_callable():
         ({"method": "laplace", "priors": {}, "i_max": 1.0}, "not both"),
         ({"method": "laplace", "i_max": -1.0}, "i_max"),
         ({"method": "laplace", "k_prior": 3}, "k_prior"),
-        ({"tie": -1.0}, "tie"),
-        ({"maxcall": 10}, "maxcall"),
+        ({"options": {"tie": 0.0}}, "options"),
+        ({"options": SelectOptions(nested=NestedOptions(n_live=4))}, "n_live"),
+        ({"rng": "seed"}, "rng"),
     ],
 )
 def test_bad_arguments_name_the_argument(kwargs, match):
@@ -170,6 +176,81 @@ def test_bad_arguments_name_the_argument(kwargs, match):
     args = {"k_max": 2, "rng": 0, **kwargs}
     with pytest.raises(InputError, match=match):
         select_k(MODEL, data, **args)
+
+
+@pytest.mark.parametrize(
+    ("record", "kwargs", "match"),
+    [
+        (LaplaceOptions, {"thresholds": {"snr": 5.0, "spacing": 2.0}}, r"unknown key.*spacing"),
+        (LaplaceOptions, {"thresholds": {"correlation": 1.5}}, r"thresholds\['correlation'\]"),
+        (LaplaceOptions, {"thresholds": {"snr": -1.0}}, r"thresholds\['snr'\]"),
+        (LaplaceOptions, {"thresholds": [("snr", 5.0)]}, "thresholds must be a mapping"),
+        (LaplaceOptions, {"importance_draws": 50}, "importance_draws"),
+        (LaplaceOptions, {"importance_draws": 500.0}, "importance_draws"),
+        (NestedOptions, {"maxcall": 10}, "maxcall"),
+        (NestedOptions, {"n_live": 1}, "n_live"),
+        (NestedOptions, {"dlogz": 0.0}, "dlogz"),
+        (DecisionOptions, {"decisive": 0.0}, "decisive"),
+        (DecisionOptions, {"tie": -1.0}, "tie"),
+        (DecisionOptions, {"max_escalations": -1}, "max_escalations"),
+        (DecisionOptions, {"min_gain": np.nan}, "min_gain"),
+        (SelectOptions, {"nested": {"maxcall": 1000}}, "nested"),
+        (SelectOptions, {"decision": LaplaceOptions()}, "decision"),
+        (SelectOptions, {"ml_method": "newton"}, "ml_method"),
+    ],
+)
+def test_option_records_refuse_bad_values_naming_the_field(record, kwargs, match):
+    with pytest.raises(InputError, match=match):
+        record(**kwargs)
+
+
+def test_option_records_are_frozen_and_show_the_thresholds_in_use():
+    import dataclasses
+
+    from olsbayes.select import THRESHOLDS
+
+    lap = LaplaceOptions(thresholds={"snr": 10})
+    assert dict(lap.thresholds) == {**THRESHOLDS, "snr": 10.0}
+    assert dict(LaplaceOptions().thresholds) == dict(THRESHOLDS)
+    with pytest.raises(TypeError):
+        lap.thresholds["snr"] = 1.0  # read-only
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        lap.importance_draws = 0
+    assert hash(SelectOptions()) == hash(SelectOptions())
+
+
+def test_everything_is_checked_before_the_first_ml_fit(monkeypatch):
+    """Bad priors for one K, a too small n_live, a bad rng: refused before any fit."""
+    import olsbayes.ml
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("an ML fit ran before the arguments were checked")
+
+    monkeypatch.setattr(olsbayes.ml, "fit_ml", no_fit)
+    data = _data(1, 0)
+    priors = {1: ScenePrior(MODEL, 1, Uniform(0.0, 2.0))}  # no entry for K = 2
+    with pytest.raises(InputError, match="K = 2"):
+        select_k(MODEL, data, k_max=2, method="laplace", priors=priors)
+    small = SelectOptions(nested=NestedOptions(n_live=6))  # K = 3 has 6 parameters
+    with pytest.raises(InputError, match="n_live must exceed the 6 parameters"):
+        select_k(MODEL, data, k_max=3, method="auto", i_max=2.0, options=small)
+    with pytest.raises(InputError, match="rng"):
+        select_k(MODEL, data, k_max=2, i_max=2.0, rng=-3)
+    with pytest.raises(TypeError):
+        select_k(MODEL, data, 2, None, None, 2.0)  # only model, data, k_max positional
+
+
+def test_ml_method_reaches_every_fit():
+    """ml_method="exact" gives the global optimum of each K (ring, clipped cosine)."""
+    from olsbayes.ml import fit_ml
+
+    data = _data(2, 1)
+    res = select_k(MODEL, data, k_max=2, method="laplace", rng=0, i_max=2.0,
+                   options=SelectOptions(ml_method="exact"))
+    for k in (1, 2):
+        assert res[k].fit.method == "exact"
+        exact = fit_ml(MODEL, data, k, "exact")
+        assert res[k].log_likelihood >= float(exact.log_likelihood) - 1e-9
 
 
 def test_bad_model_and_data():
@@ -239,16 +320,16 @@ def _work(k, value, log_likelihood, reasons=()):
 def test_auto_skips_a_k_without_laplace_value_whose_likelihood_maximum_loses():
     """log Z_K <= max log L_K (the prior is normalised): a neighbour of the best K with
     no Laplace value is sent to nested sampling only if that bound can still compete."""
-    from olsbayes.select.select import _next_escalation
+    from olsbayes.select.decide import next_escalation
 
     log_pk = np.full(4, -math.log(4))
     outside = ("ML point outside the prior's support",)
     works = [_work(0, -5e4, -5e4), _work(1, math.nan, -2.3e4, outside),
              _work(2, 77.4, 120.0), _work(3, 60.0, 120.5)]
-    args = (log_pk, math.log(100), math.log(3), 3.0, set())
-    assert _next_escalation(works, *args) is None
+    args = (log_pk, DecisionOptions(), set())
+    assert next_escalation(works, *args) is None
     works[1] = _work(1, math.nan, 85.0, outside)  # log L_max within reach of log Z_2
-    k, why = _next_escalation(works, *args)
+    k, why = next_escalation(works, *args)
     assert k == 1 and why.startswith("Laplace undefined")
 
 

@@ -140,7 +140,7 @@ def test_nested_sampling_recovers_a_known_gaussian_evidence():
         return -1.0 + 2.0 * u  # Uniform(-1, 1)^2, density 1/4
 
     want = math.log(2 * math.pi * s**2) + math.log(0.25)
-    out = nested_log_evidence(log_like, transform, 2, rng=4, maxcall=50_000, nlive=60)
+    out = nested_log_evidence(log_like, transform, 2, rng=4, maxcall=50_000, n_live=60)
     assert out.converged
     assert abs(out.log_evidence - want) < 3 * out.error + 0.05
     assert out.samples.shape[1] == 2 and out.n_calls <= 50_000
@@ -156,6 +156,10 @@ def test_nested_sampling_cap_warns():
 def test_nested_rejects_bad_options():
     with pytest.raises(InputError, match="maxcall"):
         nested_log_evidence(lambda x: 0.0, lambda u: u, 1, maxcall=10)
+    with pytest.raises(InputError, match="n_live"):
+        nested_log_evidence(lambda x: 0.0, lambda u: u, 3, n_live=3)
+    with pytest.raises(TypeError):
+        nested_log_evidence(lambda x: 0.0, lambda u: u, 1, None, 0)  # keyword-only
     with pytest.raises(InputError, match="sample"):
         nested_log_evidence(lambda x: 0.0, lambda u: u, 1, sample="nope")
 
@@ -176,6 +180,8 @@ def test_trust_flags_unresolvable_pairs_and_weak_sources():
     x = np.array([0.1, 1.0, 2.0, 0.02])  # second source 0.02 ~ 5.5 sd of I (sd ~ 0.0037)
     reasons, st = laplace_trust(RING, x, RING.fisher(x), thresholds={"snr": 10.0})
     assert len(reasons) == 1 and "weak source I[1]" in reasons[0]
+    with pytest.raises(InputError, match=r"unknown key\(s\) \['sep'\]"):
+        laplace_trust(RING, x, RING.fisher(x), thresholds={"sep": 1.0})
     x = np.array([0.1, 1.0, 2.0, 0.7])
     reasons, st = laplace_trust(RING, x, RING.fisher(x))
     assert reasons == () and st["separation"] == pytest.approx(1.9 / h)
@@ -204,6 +210,7 @@ def test_disagreeing_laplace_and_nested_evidences_warn():
 
     from olsbayes.errors import EvidenceWarning
     from olsbayes.ml import fit_ml
+    from olsbayes.select import NestedOptions
     from olsbayes.select.engine import laplace_work, nested_work
 
     model = Model(Ring(30), 0.05)
@@ -215,6 +222,7 @@ def test_disagreeing_laplace_and_nested_evidences_warn():
     assert work.reasons == ()
     bad = dataclasses.replace(work, value=work.value + 10.0, laplace=work.laplace + 10.0)
     with pytest.warns(EvidenceWarning, match="disagree"):
-        out = nested_work(model, data, bad, prior, np.random.default_rng(0), maxcall=30_000,
-                          nlive=50, dlogz=0.5)
+        out = nested_work(model, data, bad, prior,
+                          NestedOptions(maxcall=30_000, n_live=50, dlogz=0.5),
+                          rng=np.random.default_rng(0))
     assert out.method == "nested" and abs(out.value - work.laplace) < 3 * out.error + 0.5

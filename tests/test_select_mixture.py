@@ -18,7 +18,7 @@ from scipy.special import logsumexp
 
 from olsbayes import Model, Ring
 from olsbayes.priors import default_priors
-from olsbayes.select import select_k
+from olsbayes.select import LaplaceOptions, SelectOptions, select_k
 from olsbayes.select.mixture import mixture_log_evidence
 from olsbayes.studies.sbc_exact import _screen, _unit_responses
 
@@ -115,7 +115,7 @@ def test_mixture_evidence_matches_the_exact_evidence(case):
         # now agree with the exact ones (exact p(K = 2) = 0.92)
         assert any("singular" in r for r in res[k].reasons)
         bare = select_k(MODEL, data, k_max=k, method="laplace", rng=0, i_max=I_MAX,
-                        importance_draws=0)
+                        options=SelectOptions(laplace=LaplaceOptions(importance_draws=0)))
         assert bare.probabilities[0] == 1.0 and res.probabilities[0] == 0.0
         ref1, se1 = exact_log_evidence(data, 1, 13)
         odds = res.log_evidence[2] - res.log_evidence[1]
@@ -174,8 +174,7 @@ def test_bad_importance_settings_are_refused():
 
     data = _scene([(0.5, 1.0)], 3)
     with pytest.raises(InputError, match="importance_draws must be 0 or >= 100; got 50"):
-        select_k(MODEL, data, k_max=1, method="laplace", rng=0, i_max=I_MAX,
-                 importance_draws=50)
+        LaplaceOptions(importance_draws=50)
     prior = default_priors(MODEL, 1, i_max=I_MAX)
     with pytest.raises(InputError, match="target_error"):
         mixture_log_evidence(MODEL, data, prior, np.array([0.5, 1.0]), target_error=0.0)

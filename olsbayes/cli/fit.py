@@ -178,10 +178,11 @@ def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None,
                     max_steps: int = 20000, report: Path | None = None
                     ) -> tuple[dict[str, Any], str]:
     """Sample the posterior (and write the report into ``report``): payload and text."""
-    from ..posterior import sample
+    from ..posterior import SamplerOptions, sample
 
     folder = None if report is None else output_dir(report, "--report")
-    post = sample(model, data, k, rng=rng, progress=False, max_steps=max_steps)
+    post = sample(model, data, k, options=SamplerOptions(max_steps=max_steps), rng=rng,
+                  progress=False)
     check = post.crlb_check()
     payload: dict[str, Any] = {
         "estimate": post.estimate, "posterior_sd": check.posterior_sd, "crlb_sd": check.crlb_sd,

@@ -22,7 +22,7 @@ from typing import Any
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import Field, Section, read_readings, register_section
 from ..errors import InputError
-from ..select import METHODS, select_k
+from ..select import METHODS, DecisionOptions, NestedOptions, SelectOptions, select_k
 from ._common import add_command, add_config_args, add_json_arg, add_seed_arg, emit, load_cli_config
 
 __all__ = ["register", "run"]
@@ -90,7 +90,10 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("select needs readings: give --data FILE or a [data] section")
     rows = data.reshape(-1, model.n_sensors)
     opts = _options(args, cfg)
-    results = [select_k(model, row, rng=args.seed, **opts) for row in rows]
+    settings = SelectOptions(nested=NestedOptions(maxcall=opts["maxcall"]),
+                             decision=DecisionOptions(tie=opts["tie"]))
+    results = [select_k(model, row, opts["k_max"], i_max=opts["i_max"], method=opts["method"],
+                        options=settings, rng=args.seed) for row in rows]
     payload: dict[str, Any] = {"model": repr(model), "options": opts,
                                "results": [r.to_dict() for r in results]}
     if truth is not None:

@@ -150,7 +150,7 @@ def plot_trace(result, fig: Any = None, max_walkers: int = 32) -> Any:
         fig = plt.figure(figsize=(9.0, 1.7 * p + 0.6), layout="constrained")
     axes = fig.subplots(p, 2, squeeze=False, gridspec_kw={"width_ratios": [3, 1]})
     labels = param_labels(result.names)
-    draws = np.arange(x.shape[1]) * result.thin + result.burn
+    draws = np.arange(x.shape[1]) * result.thin + result.n_burn
     for j in range(p):
         ax, hx = axes[j]
         ax.plot(draws, x[:max_walkers, :, j].T, lw=0.4, alpha=0.5)
@@ -158,7 +158,7 @@ def plot_trace(result, fig: Any = None, max_walkers: int = 32) -> Any:
         hx.hist(x[..., j].ravel(), bins=40, orientation="horizontal", color="0.4")
         hx.sharey(ax)
         hx.tick_params(labelleft=False)
-    axes[-1, 0].set_xlabel(f"step (the first {result.burn} removed as burn-in)")
+    axes[-1, 0].set_xlabel(f"step (the first {result.n_burn} removed as burn-in)")
     axes[-1, 1].set_xlabel("count")
-    fig.suptitle(f"emcee traces: {x.shape[0]} walkers, burn-in {result.burn}, thin {result.thin}")
+    fig.suptitle(f"emcee traces: {x.shape[0]} walkers, burn-in {result.n_burn}, thin {result.thin}")
     return fig

@@ -20,12 +20,30 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..circular import wrap_angle
+from ..circular import largest_gap_cut, wrap_angle
 from ..priors import LogUniform, ScenePrior
 
-__all__ = ["LogPosterior"]
+__all__ = ["LogPosterior", "cut_shift"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def cut_shift(prior: ScenePrior, points: np.ndarray | None) -> np.ndarray:
+    """Per-parameter shifts (P,) putting the circle's cut in the largest source gap.
+
+    ``points`` (..., P) are the walkers' start positions; None puts the cut at pi.
+    Non-periodic parameters get shift 0.
+    """
+    shift = np.zeros(prior.n_params)
+    w = prior.n_loc + 1
+    k = prior.n_sources
+    for j, p in enumerate(prior.location):
+        if not p.periodic:
+            continue
+        idx = np.arange(k) * w + j
+        cut = np.pi if points is None else largest_gap_cut(points[..., idx])
+        shift[idx] = cut + np.pi  # window (-pi, pi] around the antipode of the cut
+    return shift
 
 
 class LogPosterior:

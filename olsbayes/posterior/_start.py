@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import finite_array
 from ..bounds import bound_covariance, covariance_root
 from ..errors import InputError
+from ..ml import MLResult, fit_ml
 from ..priors import ScenePrior
 
-__all__ = ["ball_covariance", "initial_ensemble", "ml_start"]
+__all__ = ["ball_covariance", "initial_ensemble", "ml_start", "check_start", "initial_walkers"]
 
 
 def ball_covariance(model, prior: ScenePrior, centre: np.ndarray) -> np.ndarray:
@@ -80,13 +82,73 @@ def initial_ensemble(
 
 def ml_start(model, data: np.ndarray, n_sources: int, rng: np.random.Generator
              ) -> np.ndarray:
-    """The maximum-likelihood point from :func:`olsbayes.ml.fit_ml`."""
-    try:
-        from ..ml import fit_ml
-    except ImportError as exc:  # pragma: no cover - ml subpackage missing
-        raise InputError(
-            "start=None needs olsbayes.ml.fit_ml; give start= explicitly "
-            f"(a point or an ensemble) or start='prior' ({exc})"
-        ) from None
+    """The maximum-likelihood point (P_model,) from :func:`olsbayes.ml.fit_ml`."""
     res = fit_ml(model, data, n_sources, rng=rng)
     return np.asarray(res.params, dtype=float)
+
+
+def check_start(model, prior: ScenePrior, start: object, n_walkers: int) -> object:
+    """Check ``start`` before any work; returns it (an array start as a float array).
+
+    None, ``"prior"``, an ``MLResult`` of one fit of K sources, a point (P,) or an
+    ensemble (n_walkers, P) inside the prior's support.
+    """
+    p = prior.n_params
+    if start is None:
+        return None
+    if isinstance(start, str):
+        if start != "prior":
+            raise InputError(
+                f"start must be None, an MLResult, 'prior' or an array; got {start!r}")
+        return start
+    if isinstance(start, MLResult):
+        shape = (model.n_params(prior.n_sources),)
+        if np.shape(start.params) != shape:
+            raise InputError(
+                f"start: the MLResult must hold one fit of {prior.n_sources} source(s), "
+                f"params of shape {shape}; got {np.shape(start.params)}")
+        return start
+    arr = finite_array("start", start, ndim=(1, 2), last=p)
+    if arr.ndim == 2:
+        if arr.shape[0] != n_walkers:
+            raise InputError(
+                f"start ensemble must have shape ({n_walkers}, {p}) (n_walkers, n_params); "
+                f"got {arr.shape}")
+        bad = ~prior.contains(arr)
+        if bad.any():
+            raise InputError(
+                f"start: {int(bad.sum())} walker(s) lie outside the prior support "
+                f"(lower {prior.lower}, upper {prior.upper})")
+    return arr
+
+
+def initial_walkers(model, data: np.ndarray, prior: ScenePrior, start: object,
+                    n_walkers: int, gen_ml: np.random.Generator,
+                    gen_ball: np.random.Generator) -> tuple[np.ndarray, np.ndarray | None]:
+    """Walker positions (W, P) in model coordinates and the ball centre (or None).
+
+    ``start`` is as returned by :func:`check_start`.  None fits the ML point
+    (``gen_ml``); a point (ML or given) is the centre of a CRLB-shaped ball
+    (``gen_ball``); ``"prior"`` draws the walkers from the prior (``gen_ball``);
+    an ensemble is used as is.
+    """
+    if isinstance(start, str):
+        return prior.sample(n_walkers, gen_ball), None
+    if isinstance(start, np.ndarray) and start.ndim == 2:
+        return start.copy(), None
+    if isinstance(start, np.ndarray):
+        centre = start.copy()
+    else:
+        ml_point = (ml_start(model, data, prior.n_sources, gen_ml) if start is None
+                    else np.asarray(start.params, dtype=float))
+        centre = ml_point
+        if prior.noise is not None:
+            resid = data - model.response(centre)
+            centre = np.append(centre, max(float(np.sqrt(np.mean(resid**2))), 1e-300))
+        centre = np.clip(centre, prior.lower, prior.upper)
+    if not prior.contains(centre):
+        raise InputError(
+            f"start {np.array2string(centre, precision=4)} lies outside the prior support "
+            f"(lower {prior.lower}, upper {prior.upper})")
+    cov = ball_covariance(model, prior, centre)
+    return initial_ensemble(centre, cov, n_walkers, prior.contains, gen_ball), centre

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..bounds import kink_sources
 from ..circular import wrap_angle
-from .result import PosteriorResult
+from ._arviz import summary_frame
+
+if TYPE_CHECKING:  # annotations only: the result's methods call this module
+    from .result import PosteriorResult
 
 __all__ = ["summary", "crlb_check", "CRLBCheck"]
 
@@ -36,8 +40,6 @@ def summary(result: PosteriorResult, hdi_prob: float = 0.94):
         tau (emcee integrated autocorrelation time of the sampler coordinate,
         steps) and crlb (CRLB sd at the posterior mean).
     """
-    from ._arviz import summary_frame
-
     per = result.periodic
     frame = summary_frame(result.unwrapped_samples(), list(result.names), hdi_prob=hdi_prob)
     hdi_cols = [c for c in frame.columns if c.startswith("hdi_")]

@@ -68,7 +68,7 @@ def _run_info(result: PosteriorResult) -> dict:
         "n_sources": result.n_sources, "kind": result.model.kind,
         "n_sensors": result.model.n_sensors, "sigma": result.model.sigma,
         "sigma_inferred": result.prior.noise is not None, "n_walkers": w,
-        "draws_per_walker": d, "n_steps": result.n_steps, "burn": result.burn,
+        "draws_per_walker": d, "n_steps": result.n_steps, "n_burn": result.n_burn,
         "thin": result.thin, "converged": result.converged,
         "tau_max": float(np.max(result.tau)), "elapsed_s": result.elapsed,
         "mean_acceptance": float(np.mean(result.acceptance_fraction)),

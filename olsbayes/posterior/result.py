@@ -8,7 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..circular import unwrap_around
 from ..priors import ScenePrior
+from ._arviz import posterior_array, to_netcdf
+from .audit import CRLBCheck, crlb_check, summary
 
 __all__ = ["PosteriorResult"]
 
@@ -43,7 +46,7 @@ class PosteriorResult:
         (``log x`` for parameters with a log-uniform prior), listed under the
         relabelled parameter it mostly supplies (the dominant relabelling
         permutation), so it lines up with ``names`` and ``summary()``.
-    n_steps, burn, thin : int
+    n_steps, n_burn, thin : int
         Steps run, steps discarded as burn-in, thinning of the stored draws.
     converged : bool
         Whether ``n_steps >= tau_multiple * max(tau)`` held before the step limit.
@@ -67,7 +70,7 @@ class PosteriorResult:
     start: np.ndarray | None
     tau: np.ndarray
     n_steps: int
-    burn: int
+    n_burn: int
     thin: int
     converged: bool
     acceptance_fraction: np.ndarray
@@ -88,8 +91,6 @@ class PosteriorResult:
     @property
     def samples(self) -> np.ndarray:
         """Relabelled draws, shape (n_walkers, n_draws, P), angles in (-pi, pi]."""
-        from ._arviz import posterior_array
-
         return posterior_array(self.idata, list(self.names))
 
     @property
@@ -104,8 +105,6 @@ class PosteriorResult:
         A source near +-pi then has a continuous, not a split, distribution:
         use this for every linear statistic or plot of an angle.
         """
-        from ..circular import unwrap_around
-
         return unwrap_around(self.samples, self.estimate, self.periodic)
 
     @property
@@ -114,26 +113,21 @@ class PosteriorResult:
         return np.sqrt(np.diag(self.crlb_cov))
 
     def summary(self, hdi_prob: float = 0.94):
-        """Table (pandas DataFrame) of mean, sd, HDI, ESS, R-hat, tau; see :func:`summary`."""
-        from .audit import summary
-
+        """Table (pandas DataFrame) of mean, sd, HDI, ESS, R-hat, tau, CRLB;
+        :func:`olsbayes.posterior.summary` of this result."""
         return summary(self, hdi_prob=hdi_prob)
 
-    def crlb_check(self, rtol: float = 0.2):
-        """Posterior sd against the CRLB; see :func:`olsbayes.posterior.crlb_check`."""
-        from .audit import crlb_check
-
+    def crlb_check(self, rtol: float = 0.2) -> CRLBCheck:
+        """Posterior sd against the CRLB; :func:`olsbayes.posterior.crlb_check` of this result."""
         return crlb_check(self, rtol=rtol)
 
     def to_netcdf(self, path: str | os.PathLike) -> Path:
         """Write the InferenceData to NetCDF atomically."""
-        from ._arviz import to_netcdf
-
         return to_netcdf(self.idata, path)
 
     def __repr__(self) -> str:
         w, d, _ = self.samples.shape
         return (
             f"PosteriorResult(K={self.n_sources}, walkers={w}, draws={d}, steps={self.n_steps}, "
-            f"burn={self.burn}, converged={self.converged}, tau_max={np.max(self.tau):.1f})"
+            f"n_burn={self.n_burn}, converged={self.converged}, tau_max={np.max(self.tau):.1f})"
         )

@@ -18,14 +18,14 @@ Estimators
     * mixture importance sampling over the source locations, intensities
       integrated analytically (:func:`mixture_log_evidence`): replaces every
       untrusted or undefined Laplace value (intensity at its bound 0 with a free
-      location, singular Fisher matrix, weak or close sources); a few ms, checked
-      against the exact grid evidence of 1-2 ring sources.
+      location, singular Fisher matrix, weak or close sources), checked against
+      the exact grid evidence of 1-2 ring sources.
     * one-mode importance sampling (:func:`importance_log_evidence`): a precise
       reference for the Laplace value where the modes are apart.
     * BIC / AIC pseudo-evidences, and PSIS-LOO over sub-sensors
       (:func:`loo_compare`) as a predictive cross-check.
 
-Decision
+Decision (:mod:`olsbayes.select.decide`)
     ``auto`` computes Laplace for every K, then runs nested sampling only for
     the K in doubt (at most ``max_escalations``): Laplace untrusted (singular or
     ill-conditioned Fisher matrix, sources < 2 sensor spacings apart, weak
@@ -38,10 +38,21 @@ Decision
     ``tie`` nats of the most probable: on this sensor an over-complete model
     is never decisively worse (a source split in two within one sensor spacing
     predicts exactly the same readings), so "more sources" must be earned.
+
+Settings (:mod:`olsbayes.select.options`)
+    ``select_k(..., options=SelectOptions(laplace=LaplaceOptions(...),
+    nested=NestedOptions(...), decision=DecisionOptions(...), ml_method="fast"))``;
+    every record is checked when it is built.
 """
 
 from .criteria import LOOResult, aic, bic, loo_compare
-from .diagnostics import THRESHOLDS, laplace_trust, min_separation, sensor_spacing
+from .diagnostics import (
+    THRESHOLDS,
+    check_thresholds,
+    laplace_trust,
+    min_separation,
+    sensor_spacing,
+)
 from .importance import importance_log_evidence
 from .laplace import (
     laplace_log_evidence,
@@ -51,11 +62,16 @@ from .laplace import (
 )
 from .mixture import MixtureEvidence, mixture_log_evidence
 from .nested import NestedEvidence, nested_log_evidence
+from .options import DecisionOptions, LaplaceOptions, NestedOptions, SelectOptions
 from .result import KEvidence, SelectionResult
 from .select import METHODS, select_k
 
 __all__ = [
     "select_k",
+    "SelectOptions",
+    "LaplaceOptions",
+    "NestedOptions",
+    "DecisionOptions",
     "SelectionResult",
     "KEvidence",
     "METHODS",
@@ -72,6 +88,7 @@ __all__ = [
     "sensor_spacing",
     "min_separation",
     "THRESHOLDS",
+    "check_thresholds",
     "bic",
     "aic",
     "loo_compare",

@@ -2,18 +2,17 @@
 
 BIC and AIC are penalised maximum log-likelihoods, reported as pseudo-evidences
 -BIC/2 = log L - (P/2) log N and -AIC/2 = log L - P (nats), so that
-``exp`` of their differences are Schwarz / Akaike weights.  Measured: on
-*unconstrained* ML fits they pick a spurious extra source on 5-8 % of
-three-source scenes (the drop in chi^2 from an extra source is heavier-tailed
-than chi^2 with 2 degrees of freedom); the ML fits used here keep intensities
-non-negative, which removed the case seen.
+``exp`` of their differences are Schwarz / Akaike weights.  On *unconstrained*
+ML fits they pick a spurious extra source on 5-8 % of three-source scenes (the
+drop in chi^2 from an extra source is heavier-tailed than chi^2 with 2 degrees
+of freedom); the ML fits used here keep intensities non-negative.
 
 LOO: the Laplace posterior N(x^, F^-1) of every K (draws clipped to the prior's
 support) gives per-sub-sensor log-likelihoods; ArviZ's PSIS-LOO (through the
-posterior engineer's helpers in :mod:`olsbayes.posterior._arviz`, the only
-module that calls ArviZ) estimates the expected log predictive density of a
-held-out sub-sensor.  It is a predictive cross-check, not an evidence: it does
-not penalise a spurious source that fits noise as strongly.
+helpers of :mod:`olsbayes.posterior._arviz`, the only module that calls ArviZ)
+estimates the expected log predictive density of a held-out sub-sensor.  It is a
+predictive cross-check, not an evidence: it does not penalise a spurious source
+that fits noise as strongly.
 """
 
 from __future__ import annotations
@@ -25,7 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_rng, integer
+from ..bounds import bound_covariance, covariance_root
 from ..model import Model
+from ..posterior._arviz import from_dict, loo
 
 __all__ = ["bic", "aic", "LOOResult", "loo_compare"]
 
@@ -71,7 +72,7 @@ def _pointwise(model: Model, draws: np.ndarray, data: np.ndarray) -> np.ndarray:
     return -0.5 * (resid / model.sigma) ** 2 - math.log(model.sigma) - 0.5 * math.log(2 * math.pi)
 
 
-def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000,
+def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000, *,
                 rng: np.random.Generator | int | None = None) -> LOOResult:
     """PSIS-LOO of every K of a :class:`~olsbayes.select.SelectionResult`.
 
@@ -85,9 +86,6 @@ def loo_compare(model: Model, data: np.ndarray, result, n_draws: int = 1000,
         Draws from each K's Laplace posterior (4 chains of n_draws / 4).
     rng : Generator or seed
     """
-    from ..bounds import bound_covariance, covariance_root
-    from ..posterior._arviz import from_dict, loo
-
     data = model.check_data(data)
     n_draws = integer("n_draws", n_draws, low=100)
     gen = as_rng(rng)

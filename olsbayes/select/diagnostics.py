@@ -11,20 +11,48 @@ wider than the prior.  Each check returns a short human-readable reason.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
+
 import numpy as np
 
+from .._validation import positive_float
 from ..bounds import bound_covariance
+from ..errors import InputError
 from ..geometry import lonlat_to_unit
 from ..model import Model
 
-__all__ = ["sensor_spacing", "min_separation", "laplace_trust", "THRESHOLDS"]
+__all__ = ["sensor_spacing", "min_separation", "laplace_trust", "check_thresholds",
+           "THRESHOLDS"]
 
-#: Default thresholds of :func:`laplace_trust`.
-THRESHOLDS = {
+#: Default thresholds of :func:`laplace_trust` (read-only).
+THRESHOLDS: Mapping[str, float] = MappingProxyType({
     "separation": 2.0,  # sensor spacings
     "snr": 5.0,  # intensity / its sd
     "correlation": 0.98,  # largest |correlation| between parameters
-}
+})
+
+
+def check_thresholds(thresholds: Mapping[str, float] | None) -> dict[str, float]:
+    """:data:`THRESHOLDS` with the overrides in ``thresholds``, each checked.
+
+    Unknown keys are refused; ``separation`` and ``snr`` must be > 0,
+    ``correlation`` in (0, 1].
+    """
+    if thresholds is None:
+        return dict(THRESHOLDS)
+    if not isinstance(thresholds, Mapping):
+        raise InputError(f"thresholds must be a mapping with keys among {sorted(THRESHOLDS)}; "
+                         f"got {type(thresholds).__name__}")
+    unknown = sorted(str(key) for key in thresholds if key not in THRESHOLDS)
+    if unknown:
+        raise InputError(f"thresholds: unknown key(s) {unknown}; the keys are "
+                         f"{sorted(THRESHOLDS)}")
+    out = dict(THRESHOLDS)
+    for key, value in thresholds.items():
+        out[key] = positive_float(f"thresholds[{key!r}]", value,
+                                  upper=1.0 if key == "correlation" else None)
+    return out
 
 
 def sensor_spacing(model: Model) -> float:
@@ -74,7 +102,7 @@ def laplace_trust(
     params: np.ndarray,
     fisher: np.ndarray,
     *,
-    thresholds: dict[str, float] | None = None,
+    thresholds: Mapping[str, float] | None = None,
 ) -> tuple[tuple[str, ...], dict[str, float]]:
     """Reasons not to trust the Laplace evidence at an ML point (empty: trusted).
 
@@ -85,8 +113,8 @@ def laplace_trust(
         ML point.
     fisher : ndarray, shape (P, P)
         Fisher matrix at ``params``.
-    thresholds : dict, optional
-        Overrides of :data:`THRESHOLDS`.
+    thresholds : mapping, optional
+        Overrides of :data:`THRESHOLDS` (unknown keys are refused).
 
     Returns
     -------
@@ -95,7 +123,7 @@ def laplace_trust(
         ``separation`` (sensor spacings), ``min_snr``, ``max_correlation``,
         ``condition`` (of the correlation matrix) -- NaN where not defined.
     """
-    th = {**THRESHOLDS, **(thresholds or {})}
+    th = check_thresholds(thresholds)
     k = model.n_sources_of(params)
     reasons: list[str] = []
     stats = {"separation": np.inf, "min_snr": np.inf, "max_correlation": 0.0, "condition": 1.0}

@@ -19,6 +19,7 @@ from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
 from .mixture import mixture_log_evidence
 from .nested import nested_log_evidence
+from .options import NestedOptions
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
            "information_criterion", "scalar_log_likelihood"]
@@ -67,8 +68,7 @@ MIXTURE_MIN_ESS = 20.0
 
 
 def mixture_work(model: Model, data: np.ndarray, work: KWork, prior,
-                 lower: list[np.ndarray], rng: np.random.Generator,
-                 n_draws: int) -> KWork:
+                 lower: list[np.ndarray], n_draws: int, *, rng: np.random.Generator) -> KWork:
     """Replace an untrusted or undefined Laplace value by the mixture importance-sampling
     evidence (:func:`~olsbayes.select.mixture.mixture_log_evidence`); the Laplace value
     and its reasons are kept, and the sampler's own doubts (large error, few effective
@@ -104,7 +104,7 @@ def laplace_work(model: Model, k: int, fitted: tuple, prior,
     t0 = time.perf_counter()
     fit, params, ll, origin = fitted
     log_z, fisher, _ = model_laplace(model, params, ll, prior)
-    reasons, stats = laplace_trust(model, params, fisher, thresholds=dict(thresholds or {}))
+    reasons, stats = laplace_trust(model, params, fisher, thresholds=thresholds)
     if origin.endswith("(not converged)"):
         reasons = reasons + ("ML optimiser did not meet its stopping rule",)
     log_z = float(log_z)
@@ -123,8 +123,8 @@ def scalar_log_likelihood(model: Model, data: np.ndarray):
     """A lean one-point log-likelihood for dynesty, equal to ``model.log_likelihood``.
 
     dynesty's slice samplers call the likelihood one point at a time, where the
-    batched model's per-call overhead dominates (~10x a direct kernel).  Distant
-    sources (ring, sphere) get a direct kernel; near sources use the model.
+    batched model's per-call overhead dominates.  Distant sources (ring, sphere)
+    get a direct kernel; near sources use the model.
     """
     data = np.array(data, dtype=float)
     if model.kind == "position":
@@ -149,13 +149,13 @@ def scalar_log_likelihood(model: Model, data: np.ndarray):
     return log_like
 
 
-def nested_work(model: Model, data: np.ndarray, work: KWork, prior,
-                rng: np.random.Generator, *, maxcall: int, nlive: int | None,
-                dlogz: float = 0.5) -> KWork:
+def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: NestedOptions,
+                *, rng: np.random.Generator) -> KWork:
     """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
+    maxcall = options.maxcall
     out = nested_log_evidence(scalar_log_likelihood(model, data), prior.ppf, prior.n_params,
                               periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
-                              nlive=nlive, dlogz=dlogz)
+                              n_live=options.n_live, dlogz=options.dlogz)
     lap = work.laplace
     if not work.reasons and np.isfinite(lap):
         gap = abs(out.log_evidence - lap)
@@ -163,7 +163,7 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior,
             warnings.warn(
                 f"K={work.k}: Laplace log Z = {lap:.2f} and nested log Z = "
                 f"{out.log_evidence:.2f} +- {out.error:.2f} disagree by {gap:.2f} nats "
-                "although the Laplace diagnostics passed", EvidenceWarning, stacklevel=3)
+                "although the Laplace diagnostics passed", EvidenceWarning, stacklevel=4)
     reasons = work.reasons if out.converged else work.reasons + (
         f"nested sampling stopped at maxcall={maxcall}",)
     return dataclasses.replace(

@@ -3,9 +3,9 @@
 Model comparison needs the *global* ML point of every K, and the K models are
 nested: K + 1 sources include K sources plus one of intensity 0, so
 max log L must not decrease with K, and dropping the weakest-explaining source
-of a good (K + 1)-fit is a good start for K.  The ML engineer's ``fit_ml`` is run
-for every K; then two cheap batched repairs with its bounded Levenberg-Marquardt
-(:func:`olsbayes.ml.refine_batch`):
+of a good (K + 1)-fit is a good start for K.  :func:`olsbayes.ml.fit_ml` is run
+for every K; then two cheap batched repairs with the bounded Levenberg-Marquardt
+refinement (:func:`olsbayes.ml.refine_batch`):
 
 * downwards: each (K + 1)-fit with one source dropped seeds K (this recovers
   three-source optima the greedy search missed, seen on well-separated scenes);
@@ -16,8 +16,6 @@ The better of the original and the repaired fit is kept.
 """
 
 from __future__ import annotations
-
-from collections.abc import Mapping
 
 import numpy as np
 
@@ -54,21 +52,25 @@ def fit_all(
     model: Model,
     data: np.ndarray,
     k_max: int,
-    streams: list[np.random.Generator],
-    fit_kwargs: Mapping[str, object] | None = None,
+    *,
+    method: str = "fast",
+    options: object = None,
+    rngs: list[np.random.Generator],
 ) -> dict[int, tuple[object, np.ndarray, float, str]]:
     """ML fits for K = 1..k_max: ``{K: (MLResult, params, log L, origin)}``.
 
-    ``origin`` is ``"fit_ml"``, ``"from K+1"`` or ``"from K-1"`` (which repair won);
-    a fit_ml result whose optimiser did not converge has origin
-    ``"fit_ml (not converged)"``.
+    ``method`` and ``options`` are those of :func:`olsbayes.ml.fit_ml`; the fit of K
+    sources draws from ``rngs[K]``.  ``origin`` is ``"fit_ml"``, ``"from K+1"`` or
+    ``"from K-1"`` (which repair won); a fit_ml result whose optimiser did not
+    converge has origin ``"fit_ml (not converged)"``.
     """
     from ..ml import fit_ml
 
+    settings = {} if options is None else {"options": options}
     fits: dict[int, list] = {}
     for k in range(1, k_max + 1):
-        opts = {"warn": False, **dict(fit_kwargs or {})}  # non-convergence becomes a reason
-        fit = fit_ml(model, data, k, rng=streams[k], **opts)
+        # warn=False: non-convergence becomes a reason not to trust the Laplace value
+        fit = fit_ml(model, data, k, method, rng=rngs[k], warn=False, **settings)
         x = model.canonical(np.asarray(fit.params, float))
         origin = "fit_ml" if bool(np.all(fit.converged)) else "fit_ml (not converged)"
         fits[k] = [fit, x, float(model.log_likelihood(x, data)), origin]

@@ -28,8 +28,9 @@ def importance_log_evidence(
     cov: np.ndarray,
     prior,
     n_draws: int = 20_000,
-    rng: np.random.Generator | int | None = None,
+    *,
     df: float = 5.0,
+    rng: np.random.Generator | int | None = None,
 ) -> tuple[float, float]:
     """log Z_K and its standard error by importance sampling around one mode.
 
@@ -43,9 +44,9 @@ def importance_log_evidence(
         Scale matrix of the proposal (the inverse Fisher matrix).
     prior : ScenePrior
     n_draws : int
-    rng : Generator or seed
     df : float
         Degrees of freedom of the Student-t proposal.
+    rng : Generator or seed
 
     Returns
     -------

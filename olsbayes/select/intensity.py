@@ -57,8 +57,8 @@ def _wide_direction(cov: np.ndarray, n_iter: int = 4) -> np.ndarray:
     return u / np.linalg.norm(u, axis=1, keepdims=True)
 
 
-def location_log_weights(model, data: np.ndarray, prior, loc: np.ndarray, gen: np.random.Generator
-                 ) -> np.ndarray:
+def location_log_weights(model, data: np.ndarray, prior, loc: np.ndarray, *,
+                         rng: np.random.Generator) -> np.ndarray:
     """log of  max_I L (2 pi)^(K/2) det(C)^(1/2) E_{N(I^, C)}[pi(loc, I)]  per draw, (n,).
 
     The intensities given the locations are N(I^, C).  For a general intensity prior
@@ -86,7 +86,7 @@ def location_log_weights(model, data: np.ndarray, prior, loc: np.ndarray, gen: n
     # for nearly coincident sources at high SNR (ill-conditioned G^T G)
     resid = data - np.einsum("nk,nks->ns", i_hat, g)
     chi2 = np.einsum("ns,ns->n", resid, resid) / s2
-    x = np.einsum("nij,nj->ni", np.linalg.cholesky(cov), gen.standard_normal((n, k)))
+    x = np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.standard_normal((n, k)))
     inten = prior.intensity
     if inten.flat:
         u = _wide_direction(cov)

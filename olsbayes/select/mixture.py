@@ -288,10 +288,10 @@ def mixture_log_evidence(
     fit_k: np.ndarray,
     lower: list[np.ndarray] | tuple[np.ndarray, ...] = (),
     n_draws: int = 2000,
-    rng: np.random.Generator | int | None = None,
     *,
     target_error: float = 0.1,
     max_draws: int = 16_000,
+    rng: np.random.Generator | int | None = None,
 ) -> MixtureEvidence:
     """log Z_K by importance sampling over the K locations (intensities integrated).
 
@@ -312,11 +312,11 @@ def mixture_log_evidence(
         "that fit plus the missing sources near one of its sources or anywhere".
     n_draws : int
         Initial number of location draws (>= 100).
-    rng : Generator or seed
     target_error : float
         Stop adding draws once the standard error is below this (nats).
     max_draws : int
         Cap on the total number of draws.
+    rng : Generator or seed
 
     Returns
     -------
@@ -351,7 +351,7 @@ def _batch(model, data: np.ndarray, prior, comps: list[_Component], n: int,
     """log importance weights (n,) of n draws from the mixture (-inf: weight 0)."""
     counts = gen.multinomial(n, [c.weight for c in comps])
     loc = np.concatenate([_draw(c, prior, int(m), gen) for c, m in zip(comps, counts)])
-    log_w = location_log_weights(model, data, prior, loc, gen) - _log_q(comps, prior, loc)
+    log_w = location_log_weights(model, data, prior, loc, rng=gen) - _log_q(comps, prior, loc)
     return np.where(np.isfinite(log_w), log_w, -np.inf)
 
 

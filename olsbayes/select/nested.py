@@ -4,9 +4,9 @@ The prior transform is the priors' ``ppf`` on the unit cube of the full
 (unordered, labelled) parameter space, so dynesty integrates over all K! modes
 of exchangeable sources -- the same Z_K the Laplace formula reaches with its
 log K! term.  Ring angles and sphere longitudes are periodic.  The default
-sampler is dynesty's ``rslice`` (random slice sampling), which was measured not
-to hang on over-complete models (K larger than the truth), where the default
-sampler has run for more than 10 min.
+sampler is dynesty's ``rslice`` (random slice sampling), which keeps a bounded
+cost on over-complete models (K larger than the truth), where dynesty's default
+sampler can run for a very long time; every run is capped by ``maxcall`` anyway.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ def nested_log_evidence(
     periodic: Sequence[int] | None = None,
     rng: np.random.Generator | int | None = None,
     maxcall: int = 200_000,
-    nlive: int | None = None,
+    n_live: int | None = None,
     dlogz: float = 0.1,
     sample: str = "rslice",
 ) -> NestedEvidence:
@@ -89,8 +89,8 @@ def nested_log_evidence(
     maxcall : int
         Cap on likelihood calls (>= 1000); a run stopped by the cap warns
         :class:`~olsbayes.errors.ConvergenceWarning`.
-    nlive : int, optional
-        Live points; default ``max(100, 25 * ndim)``.
+    n_live : int, optional
+        Live points (> ndim); default ``max(100, 25 * ndim)``.
     dlogz : float
         Stop when the estimated remaining evidence is below this (nats).
     sample : str
@@ -100,7 +100,7 @@ def nested_log_evidence(
 
     ndim = integer("ndim", ndim, low=1)
     maxcall = integer("maxcall", maxcall, low=1000)
-    nlive = max(100, 25 * ndim) if nlive is None else integer("nlive", nlive, low=ndim + 1)
+    n_live = max(100, 25 * ndim) if n_live is None else integer("n_live", n_live, low=ndim + 1)
     dlogz = positive_float("dlogz", dlogz)
     if sample not in SAMPLERS:
         raise InputError(f"sample must be one of {SAMPLERS}; got {sample!r}")
@@ -112,18 +112,18 @@ def nested_log_evidence(
         log_likelihood,
         prior_transform,
         ndim,
-        nlive=nlive,
+        nlive=n_live,
         bound="multi",
         sample=sample,
         periodic=per,
         rstate=gen,
     )
-    # the initial live points cost nlive calls that run_nested's cap does not count
+    # the initial live points cost n_live calls that run_nested's cap does not count
     with warnings.catch_warnings():  # dynesty's own cap warning is replaced by ours below
         warnings.filterwarnings("ignore", message="The sampling was stopped short")
-        sampler.run_nested(maxcall=max(maxcall - nlive, 1), dlogz=dlogz, print_progress=False)
+        sampler.run_nested(maxcall=max(maxcall - n_live, 1), dlogz=dlogz, print_progress=False)
     res = sampler.results
-    n_calls = int(np.sum(res.ncall)) + nlive
+    n_calls = int(np.sum(res.ncall)) + n_live
     converged = n_calls < maxcall
     if not converged:
         warnings.warn(

@@ -80,12 +80,13 @@ def _one_fit(model: Model, data: np.ndarray, k: int, est: Estimator, rng) -> tup
 def _posterior(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,
                rng) -> tuple:
     """The posterior mean of an emcee run of exactly ``n_steps`` steps."""
-    from ..posterior import sample
+    from ..posterior import SamplerOptions, sample
 
     steps = est.option("n_steps")
-    res = sample(model, data, k, priors=_priors(model, settings, k), rng=rng, progress=False,
-                 max_steps=steps, tau_multiple=1e9, check_every=steps,
-                 n_walkers=est.option("n_walkers"))
+    opts = SamplerOptions(n_walkers=est.option("n_walkers"), max_steps=steps,
+                          tau_multiple=1e9, check_every=steps)
+    res = sample(model, data, k, priors=_priors(model, settings, k), options=opts, rng=rng,
+                 progress=False)
     # a fixed chain length is the point here: report it in autocorrelation times
     return res.estimate, res.n_steps >= 50 * float(np.max(res.tau)), res.n_evaluations
 

@@ -68,7 +68,7 @@ def sbc_posterior(settings: dict, *, rng: np.random.Generator) -> dict:
         ``rank`` (P,) in 0..N_DRAWS, ``in50``/``in90`` (P,) whether the truth lies in
         the central 50 % / 90 % interval of the draws, ``converged``, ``seconds``.
     """
-    from ..posterior import sample
+    from ..posterior import SamplerOptions, sample
 
     model = _model(settings)
     k = int(settings.get("n_sources", 1))
@@ -78,9 +78,9 @@ def sbc_posterior(settings: dict, *, rng: np.random.Generator) -> dict:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)
-        res = sample(model, data, k, priors=prior, rng=rng, progress=False,
-                     tau_multiple=float(settings.get("tau_multiple", 50.0)),
-                     max_steps=int(settings.get("max_steps", 20000)))
+        opts = SamplerOptions(tau_multiple=float(settings.get("tau_multiple", 50.0)),
+                              max_steps=int(settings.get("max_steps", 20000)))
+        res = sample(model, data, k, priors=prior, options=opts, rng=rng, progress=False)
     draws = model.canonical(_thinned(res, N_DRAWS))
     t = model.canonical(truth)
     lo50, hi50, lo90, hi90 = np.quantile(draws, [0.25, 0.75, 0.05, 0.95], axis=0)

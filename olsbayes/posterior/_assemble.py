@@ -1,0 +1,98 @@
+"""From an emcee chain to the stored posterior: burn-in, thinning, relabelling, InferenceData."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..bounds import bound_covariance
+from ..circular import circular_mean
+from ..model import Model
+from ..priors import ScenePrior
+from ._arviz import to_inference_data
+from ._labels import block_index, dominant_permutation, relabel
+from ._logpost import LogPosterior
+from .options import SamplerOptions
+
+__all__ = ["assemble", "crlb_covariance", "MAX_STORED_DRAWS", "PRIOR_DRAWS"]
+
+#: Draws kept per walker at most (further thinning beyond this), bounds memory.
+MAX_STORED_DRAWS = 5000
+#: Independent prior draws stored in the InferenceData ``prior`` group.
+PRIOR_DRAWS = 2000
+
+
+def _kept_steps(tau: np.ndarray, n_steps: int, options: SamplerOptions
+                ) -> tuple[np.ndarray, int, int]:
+    """Indices of the stored steps, the burn-in and the thinning actually used."""
+    n_burn = options.n_burn
+    if n_burn is None:
+        n_burn = int(np.ceil(5 * np.nanmax(tau))) if np.all(np.isfinite(tau)) else n_steps // 2
+    n_burn = min(n_burn, n_steps // 2)
+    thin = max(options.thin, int(np.ceil((n_steps - n_burn) / MAX_STORED_DRAWS)))
+    return np.arange(n_burn, n_steps)[::thin], n_burn, thin
+
+
+def _point_estimate(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
+    """Posterior mean (P,) of draws (W, D, P); circular mean for periodic parameters."""
+    estimate = x.reshape(-1, x.shape[-1]).mean(axis=0)
+    if prior.periodic.any():
+        estimate[prior.periodic] = circular_mean(x[..., prior.periodic].reshape(
+            -1, int(prior.periodic.sum())), axis=0)
+    return estimate
+
+
+def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
+             centre: np.ndarray | None, options: SamplerOptions,
+             gen_prior: np.random.Generator) -> dict:
+    """The fields of a :class:`~olsbayes.posterior.PosteriorResult` (all but
+    ``converged``, ``elapsed``, ``n_evaluations``) from a finished sampler."""
+    import emcee
+
+    prior = logpost.prior
+    chain = sampler.get_chain()  # (steps, W, P) sampler coordinates
+    n_steps = chain.shape[0]
+    tau = np.asarray(sampler.get_autocorr_time(tol=0), dtype=float)
+    keep, n_burn, thin = _kept_steps(tau, n_steps, options)
+    moved = np.any(chain[keep] != chain[np.maximum(keep - 1, 0)], axis=-1)
+    moved[keep == 0] = True
+    z = chain[keep].swapaxes(0, 1)  # (W, D, P)
+    lpost = sampler.get_log_prob()[keep].T - logpost.jacobian(z)  # density of x, not z
+    x = logpost.to_params(z)
+    w = prior.n_loc + 1
+    periodic_loc = prior.periodic[:w] if prior.n_sources else np.zeros(w, bool)
+    switch = 0.0
+    if options.relabel_sources:
+        x, perms = relabel(x, prior.n_sources, periodic_loc, lpost)
+        perm, switch = dominant_permutation(perms)
+        tau = tau[block_index(perm, w, prior.n_params)]  # tau of the relabelled parameters
+    estimate = _point_estimate(x, prior)
+    crlb_cov = crlb_covariance(model, prior, estimate)
+    constants = {"normals": model.array.normals, "crlb_cov": crlb_cov, "estimate": estimate}
+    if model.array.positions is not None:
+        constants["positions"] = model.array.positions
+    if prior.noise is None:
+        constants["sigma"] = np.array(model.sigma)
+    attrs = {"sampler": "emcee", "emcee_version": emcee.__version__, "kind": model.kind,
+             "n_sources": prior.n_sources, "n_burn": n_burn, "thin": thin, "n_steps": n_steps,
+             "parameter_names": " ".join(prior.param_names)}
+    idata = to_inference_data(
+        x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),
+        accepted=moved.T, pointwise=logpost.pointwise(x), data=data, constants=constants,
+        attrs=attrs, prior_draws=prior.sample((1, PRIOR_DRAWS), gen_prior))
+    return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,
+                names=tuple(prior.param_names), estimate=estimate, crlb_cov=crlb_cov,
+                start=centre, tau=tau, n_steps=n_steps, n_burn=n_burn, thin=thin,
+                acceptance_fraction=np.asarray(sampler.acceptance_fraction),
+                switch_fraction=switch)
+
+
+def crlb_covariance(model: Model, prior: ScenePrior, x: np.ndarray) -> np.ndarray:
+    """CRLB covariance (P, P) at ``x``, with the sigma block sigma^2 / (2 N) if inferred."""
+    p_model = model.n_params(prior.n_sources)
+    out = np.full((prior.n_params, prior.n_params), 0.0)
+    fisher = model.fisher(x[:p_model])
+    if prior.noise is not None:
+        fisher = fisher * (model.sigma / x[-1]) ** 2
+        out[-1, -1] = x[-1] ** 2 / (2 * model.n_sensors)
+    out[:p_model, :p_model] = bound_covariance(fisher)[0]
+    return out
