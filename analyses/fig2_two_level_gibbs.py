@@ -67,7 +67,7 @@ def run(sensors, sources, trials, n_samples, width, n_chains, starts, rng):
         s0 = np.vstack([np.tile(res.mode > 0.5, (half, 1)),
                         rng.random((n_chains - half, a.shape[1])) < relaxed])
         t0 = time.perf_counter()
-        g = two_level_gibbs(a, y, SIGMA, 1.0, s0, groups, n_samples, rng,
+        g = two_level_gibbs(a, y, SIGMA, 1.0, s0, groups, n_samples, rng=rng,
                             n_burn=n_samples // 2)
         s["sec"].append(time.perf_counter() - t0)
         p = g.p_bright

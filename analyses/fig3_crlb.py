@@ -43,7 +43,7 @@ def measure(n: int, sigma: float, trials: int, rng: np.random.Generator) -> list
     model = ob.Model(ob.Ring(n), sigma)
     scene = ob.Scene(directions=THETA, intensities=INTENSITY)
     truth = model.canonical(model.pack(scene))  # sorted by wrapped angle
-    data = model.simulate(scene, rng, size=trials)
+    data = model.simulate(scene, rng=rng, size=trials)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
         res = fit_ml(model, data, 2)

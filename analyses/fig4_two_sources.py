@@ -50,7 +50,7 @@ def measure(sep: float, trials: int, rng: np.random.Generator) -> dict:
     model = ob.Model(ob.Ring(N), SIGMA)
     scene = ob.Scene(directions=[CENTRE - sep / 2, CENTRE + sep / 2], intensities=[1.0, 1.0])
     truth = model.canonical(model.pack(scene))
-    data = model.simulate(scene, rng, size=trials)
+    data = model.simulate(scene, rng=rng, size=trials)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
         res = fit_ml(model, data, 2)

@@ -84,7 +84,7 @@ def scene_stats(model: ob.Model, scene: ob.Scene, n_draws: int,
         warnings.simplefilter("ignore", ob.KinkWarning)
         std = ob.crlb(model, scene.sorted()).std
     truth = model.canonical(model.pack(scene))
-    data = model.simulate(scene, rng, size=n_draws)
+    data = model.simulate(scene, rng=rng, size=n_draws)
     ml = fit_ml(model, data, 4, method="exact", warn=False)
     oracle = refine_batch(model, data, np.repeat(truth[None], n_draws, axis=0))
     err_ml = estimation_errors(model, ml.params, truth)

@@ -56,7 +56,7 @@ def run_k(model: ob.Model, k: int, args: argparse.Namespace, seq: np.random.Seed
     rows = {"exact": [], "fast": [], "multistart": [], "kink": []}
     times = {"exact": 0.0, "fast": 0.0, "multistart": 0.0}
     for i in range(args.scenes):
-        data = model.simulate(random_scene(rng, k, np.radians(args.min_sep)), rng,
+        data = model.simulate(random_scene(rng, k, np.radians(args.min_sep)), rng=rng,
                               size=args.draws)
         fits = (
             ("exact", lambda: fit_ml(model, data, k, method="exact", warn=False)),

@@ -85,7 +85,7 @@ def run_point(model: Model, sep: float, trials: int, seed: int, fit_method: str 
     for t in range(trials):
         th = rng.uniform(-np.pi, np.pi)
         x = model.canonical(np.array([th, 1.0, th + sep, 1.0]))
-        d = model.simulate(x, rng)
+        d = model.simulate(x, rng=rng)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OlsBayesWarning)
             res = select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX,
@@ -117,7 +117,7 @@ def false_alarms(model: Model, trials: int, seed: int, fit_method: str = "exact"
     hits = 0
     for _ in range(trials):
         x = np.array([rng.uniform(-np.pi, np.pi), 1.0])
-        d = model.simulate(x, rng)
+        d = model.simulate(x, rng=rng)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OlsBayesWarning)
             hits += select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX,

@@ -149,7 +149,7 @@ def run_setting(name, sigma, scene, n_trials, n_ms, rng, block=10):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ob.KinkWarning)
         std = ob.crlb(model, scene.sorted()).std
-    data = model.simulate(scene, rng, size=n_trials)
+    data = model.simulate(scene, rng=rng, size=n_trials)
     fit_ml(model, data[:2], k)  # warm the tuple-search plan cache for every method alike
     out = {}
     with warnings.catch_warnings():
@@ -284,7 +284,7 @@ def efficiency_only(n_trials: int, seed: int) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ob.KinkWarning)
             std = ob.crlb(model, scene.sorted()).std
-        data = model.simulate(scene, rng, size=n_trials)
+        data = model.simulate(scene, rng=rng, size=n_trials)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
             res = fit_ml(model, data, scene.n_sources)
@@ -332,12 +332,12 @@ def scene_study(k: int, sigma: float, n_scenes: int, n_trials: int, n_ms: int, n
     reach_f, reach_m, t_f, t_m, eff_f, eff_o = [], [], 0.0, 0.0, [], []
     ms_rng = np.random.default_rng(rng.integers(2**63))
     scenes = random_scenes(model, k, n_scenes, rng)
-    warm = model.simulate(scenes[0], rng, size=2)  # plans and compiled code, for both alike
+    warm = model.simulate(scenes[0], rng=rng, size=2)  # plans and compiled code, for both alike
     fit_ml(model, warm, k)
     fit_ml(model, warm[0], k, method="multistart", rng=0)
     for scene in scenes:
         truth = model.canonical(model.pack(scene))
-        data = model.simulate(scene, rng, size=max(n_trials, n_eff))
+        data = model.simulate(scene, rng=rng, size=max(n_trials, n_eff))
         ref = refine_batch(model, data, np.repeat(truth[None], data.shape[0], axis=0))
         c0 = time.process_time()
         fast = fit_ml(model, data[:n_trials], k)

@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     print(header + "\n" + lines[1], flush=True)
     for name, model, k, w in cases(args.full):
         x = random_params(model, k, w, rng)
-        data = model.simulate(random_params(model, k, 1, rng)[0], rng)
+        data = model.simulate(random_params(model, k, 1, rng)[0], rng=rng)
         terms = w * k * model.n_sensors
         t_resp = best_time(lambda: model.response(x), min_time, repeats)
         t_logl = best_time(lambda: model.log_likelihood(x, data), min_time, repeats)

@@ -68,7 +68,7 @@ def laplace_timing(model, reps: int) -> list[dict]:
         x = np.array(scene, float).ravel()
         tot, cpu, fits, evid, right = [], [], [], [], 0
         for r in range(reps):
-            d = model.simulate(x, np.random.default_rng([k, r]))
+            d = model.simulate(x, rng=np.random.default_rng([k, r]))
             t0, c0 = time.perf_counter(), time.process_time()
             res = select_k(model, d, k_max=4, method="laplace", rng=r, i_max=2.0)
             tot.append(time.perf_counter() - t0)
@@ -95,7 +95,7 @@ def laplace_timing(model, reps: int) -> list[dict]:
 
 def nested_vs_laplace(model, seed: int, maxcall: int, n_live: int | None) -> list[dict]:
     x = np.array(SCENES[2], float).ravel()
-    d = model.simulate(x, np.random.default_rng([2, 0]))
+    d = model.simulate(x, rng=np.random.default_rng([2, 0]))
     t0 = time.perf_counter()
     lap = select_k(model, d, k_max=4, method="laplace", rng=seed, i_max=2.0)
     t_lap = time.perf_counter() - t0
@@ -142,7 +142,7 @@ def hard_cases(model, seed: int, maxcall: int) -> list[dict]:
     rows = []
     for name, (k_max, scene) in HARD.items():
         x = np.array(scene, float).ravel()
-        d = model.simulate(x, np.random.default_rng(11))
+        d = model.simulate(x, rng=np.random.default_rng(11))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             t0 = time.perf_counter()

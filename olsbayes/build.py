@@ -131,7 +131,7 @@ def data_from_config(
     cfg: Config,
     model: Model,
     scene: Scene | None = None,
-    rng: np.random.Generator | int | None = None,
+    *, rng: np.random.Generator | int | None = None,
 ) -> np.ndarray | None:
     """Readings of the ``[data]`` section: read from ``file`` or simulated.
 
@@ -159,4 +159,4 @@ def data_from_config(
     reps = sec.get("repeats", 1)
     _check_size(cfg, reps * model.n_sensors, "[data] repeats * sub-sensors", MAX_READINGS)
     with _as_config_error(cfg, "data"):
-        return model.simulate(scene, seed, size=None if reps == 1 else reps)
+        return model.simulate(scene, rng=seed, size=None if reps == 1 else reps)

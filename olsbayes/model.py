@@ -357,6 +357,7 @@ class Model(Frozen):
     def simulate(
         self,
         scene: Scene | np.ndarray,
+        *,
         rng: np.random.Generator | int | None = None,
         size: int | tuple[int, ...] | None = None,
     ) -> np.ndarray:

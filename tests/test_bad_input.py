@@ -18,7 +18,7 @@ from olsbayes.config import parse_config, read_readings
 RING = ob.Ring(30)
 MODEL = ob.Model(RING, 0.01)
 GOOD = ob.Scene(directions=[0.37, -2.0], intensities=[1.0, 0.2])
-DATA = MODEL.simulate(GOOD, 0)
+DATA = MODEL.simulate(GOOD, rng=0)
 
 
 def _ok(c):
@@ -95,12 +95,12 @@ API_CASES = [
     ("params ragged", lambda: MODEL.jacobian([[1, 2], [3]]), "real array"),
     ("likelihood data length", lambda: MODEL.log_likelihood(np.zeros(4), np.zeros(29)),
      "length 30"),
-    ("simulate size < 0", lambda: MODEL.simulate(GOOD, 0, size=-1), "size"),
-    ("simulate size float", lambda: MODEL.simulate(GOOD, 0, size=2.5), "size"),
+    ("simulate size < 0", lambda: MODEL.simulate(GOOD, rng=0, size=-1), "size"),
+    ("simulate size float", lambda: MODEL.simulate(GOOD, rng=0, size=2.5), "size"),
     ("data wrong length", lambda: MODEL.check_data(np.zeros(29)), "length 30"),
     ("data nan", lambda: MODEL.check_data(np.full(30, np.nan)), "finite"),
-    ("rng negative seed", lambda: MODEL.simulate(GOOD, -1), "seed"),
-    ("rng string", lambda: MODEL.simulate(GOOD, "abc"), "rng"),
+    ("rng negative seed", lambda: MODEL.simulate(GOOD, rng=-1), "seed"),
+    ("rng string", lambda: MODEL.simulate(GOOD, rng="abc"), "rng"),
     ("crlb model not a Model", lambda: ob.crlb("ring", GOOD), "model must be"),
     ("crlb empty scene", lambda: ob.crlb(MODEL, ob.Scene(directions=[], intensities=[])),
      "at least one source"),

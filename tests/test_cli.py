@@ -74,7 +74,7 @@ def test_simulate_writes_file_fit_can_read(tmp_path, capsys):
     assert rows.shape == (3, 30)
     model = Model(Ring(30), 0.01)
     expect = model.simulate(Scene(directions=[0.37, 0.37 - np.pi], intensities=[1.0, 0.2]),
-                            5, size=3)
+                            rng=5, size=3)
     np.testing.assert_allclose(rows, expect, rtol=0, atol=1e-14)  # %.17g round trip
 
 

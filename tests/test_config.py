@@ -72,7 +72,7 @@ def test_ring_scene_in_degrees_and_simulated_data():
     scene = scene_from_config(cfg, model)
     np.testing.assert_allclose(scene.directions, [np.pi / 2, -np.pi / 4])
     data = data_from_config(cfg, model, scene)
-    np.testing.assert_array_equal(data, model.simulate(scene, 4, size=3))
+    np.testing.assert_array_equal(data, model.simulate(scene, rng=4, size=3))
 
 
 def test_sphere_and_plate_geometries():

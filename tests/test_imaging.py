@@ -105,7 +105,7 @@ def test_image_gaussian_is_the_closed_form(ring_problem):
     "m,s,lo,hi", [(0.3, 0.5, 0.0, 1.0), (0.0, 1.0, 6.0, 7.0), (2.0, 0.1, -1.0, 0.5)]
 )
 def test_truncnorm_1d_moments(m, s, lo, hi):
-    x = truncnorm_1d(np.full(40_000, m), s, lo, hi, np.random.default_rng(1))
+    x = truncnorm_1d(np.full(40_000, m), s, lo, hi, rng=np.random.default_rng(1))
     ref = stats.truncnorm((lo - m) / s, (hi - m) / s, m, s)
     assert np.all((x >= lo) & (x <= hi))
     se = ref.std() / np.sqrt(x.size)
@@ -141,7 +141,7 @@ def test_exact_hmc_matches_2d_quadrature(singular):
     lo, hi = np.zeros(2), np.ones(2)
     mean, cov = _box_moments_2d(q, b, lo, hi)
     run = sample_truncated_gaussian(
-        q, b, lo, hi, np.full((8, 2), 0.5), 1500, np.random.default_rng(7), n_burn=50,
+        q, b, lo, hi, np.full((8, 2), 0.5), 1500, rng=np.random.default_rng(7), n_burn=50,
         ridge=1.0 if singular else 0.0, centre=np.full(2, 0.5),
     )
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
@@ -164,7 +164,7 @@ def test_gibbs_with_pair_moves_matches_2d_quadrature():
     q, b = a.T @ a / sigma**2, a.T @ y / sigma**2
     mean, cov = _box_moments_2d(q, b, np.zeros(2), np.ones(2))
     run = gibbs_intensities(a, y, sigma, 1.0, np.full((8, 2), 0.5), 2000,
-                            np.random.default_rng(11), n_burn=20, pairs=np.array([[0, 1]]))
+                            rng=np.random.default_rng(11), n_burn=20, pairs=np.array([[0, 1]]))
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
     se = _batch_se(x.mean(axis=1))
     np.testing.assert_array_less(np.abs(x.reshape(-1, 2).mean(axis=0) - mean), 5 * se)
@@ -177,7 +177,7 @@ def test_exact_hmc_1d_matches_scipy_truncnorm():
     m, s = 0.3, 0.5
     run = sample_truncated_gaussian(
         np.array([[1 / s**2]]), np.array([m / s**2]), np.zeros(1), np.ones(1),
-        np.full((4, 1), 0.5), 3000, np.random.default_rng(2), n_burn=10,
+        np.full((4, 1), 0.5), 3000, rng=np.random.default_rng(2), n_burn=10,
     )
     ref = stats.truncnorm(-m / s, (1 - m) / s, m, s)
     x = np.moveaxis(run.samples[..., 0], 1, 0)  # (S, C)
@@ -194,8 +194,9 @@ def test_spike_and_slab_gibbs_matches_brute_force(pairs):
     y = np.array([0.55, 0.2, 0.35])
     sigma, i_max = 0.2, 1.0
     w = 0.3  # fixed by a very tight Beta hyperprior
-    run = gibbs_intensities(a, y, sigma, i_max, np.zeros((8, 2)), 3000, np.random.default_rng(4),
-                            n_burn=50, spike=True, w_prior=(3e6, 7e6), pairs=pairs)
+    run = gibbs_intensities(a, y, sigma, i_max, np.zeros((8, 2)), 3000,
+                            rng=np.random.default_rng(4), n_burn=50, spike=True,
+                            w_prior=(3e6, 7e6), pairs=pairs)
 
     def lik(x1, x2):
         return np.exp(-0.5 * np.sum((y - a @ np.array([x1, x2])) ** 2) / sigma**2)

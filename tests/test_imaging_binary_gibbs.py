@@ -41,7 +41,7 @@ def test_block_gibbs_matches_enumeration(width, p):
     groups = np.array([np.arange(j, j + width) % k for j in range(k)])
     exact, lp_max = _exact_p_bright(a, y, sigma, i_max, p)
     run = two_level_gibbs(a, y, sigma, i_max, np.zeros((8, k), dtype=bool), groups, 3000,
-                          np.random.default_rng(6), p_bright=p, n_burn=20)
+                          rng=np.random.default_rng(6), p_bright=p, n_burn=20)
     x = np.moveaxis(run.bits, 1, 0).astype(float)  # (S, C, K)
     se = _batch_se(x.mean(axis=1))
     np.testing.assert_array_less(np.abs(run.p_bright - exact), 5 * se + 1e-12)
@@ -60,4 +60,4 @@ def test_window_width_is_checked():
     a, y, sigma = _problem()
     with pytest.raises(ob.InputError, match="groups"):
         two_level_gibbs(a, y, sigma, 1.0, np.zeros((1, 7), dtype=bool),
-                        np.zeros((1, 13), dtype=int), 4, np.random.default_rng(0))
+                        np.zeros((1, 13), dtype=int), 4, rng=np.random.default_rng(0))

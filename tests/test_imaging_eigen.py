@@ -45,7 +45,7 @@ def test_eigen_gibbs_matches_2d_quadrature(case):
         q, b = 8.0 * np.outer(v, v), 8.0 * 0.9 * v
     lo, hi = np.zeros(2), np.ones(2)
     mean, var = _box_moments_2d(q, b, lo, hi)
-    run = eigen_gibbs(q, b, lo, hi, np.full((8, 2), 0.5), 1500, np.random.default_rng(17),
+    run = eigen_gibbs(q, b, lo, hi, np.full((8, 2), 0.5), 1500, rng=np.random.default_rng(17),
                       n_burn=20, coordinate=case != "singular-coordinate-off")
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
     assert np.all((x >= 0) & (x <= 1))
@@ -60,7 +60,7 @@ def test_eigen_gibbs_nonnegative_1d_half_line():
     # one coordinate, flat prior on x >= 0: a half-normal-like truncation at 0
     m, s = -0.2, 0.5
     run = eigen_gibbs(np.array([[1 / s**2]]), np.array([m / s**2]), np.zeros(1),
-                      np.full(1, np.inf), np.full((4, 1), 0.3), 3000, np.random.default_rng(3),
+                      np.full(1, np.inf), np.full((4, 1), 0.3), 3000, rng=np.random.default_rng(3),
                       n_burn=10)
     from scipy import stats
 

@@ -51,7 +51,7 @@ def _check(samples, mean, var, n_se=5.0):
 def test_compiled_truncnorm_is_the_same_inversion(m, s, lo, hi):
     # both invert the truncated CDF: the same uniform gives the same draw
     u = np.random.default_rng(3).random(500)
-    ref = truncnorm_1d(np.full(500, m), s, lo, hi, np.random.default_rng(3))
+    ref = truncnorm_1d(np.full(500, m), s, lo, hi, rng=np.random.default_rng(3))
     got = np.array([truncnorm_inv(m, s, lo, hi, v) for v in u])
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-8 * s)
 
@@ -81,7 +81,7 @@ def test_window_moves_alone_match_2d_quadrature(case):
     r = y - x @ a.T
     out = np.empty((8, 3000, 2))
     for i in range(3020):
-        window_sweep(x, r, moves, sigma, 1.0, rng)
+        window_sweep(x, r, moves, sigma, 1.0, rng=rng)
         if i >= 20:
             out[:, i - 20] = x
     np.testing.assert_allclose(r, y - x @ a.T, atol=1e-10)  # residual kept up to date
@@ -98,7 +98,7 @@ def test_gibbs_with_window_moves_matches_3d_grid():
     assert moves.n_moves >= 1 and moves.lam.min() < 1e-20  # the null vector is kept
     # compiled path: single-site, pair and window moves in one random order
     run = gibbs_intensities(a, y, sigma, 1.0, np.full((8, 3), 0.5), 2000,
-                            np.random.default_rng(7), n_burn=20, windows=moves,
+                            rng=np.random.default_rng(7), n_burn=20, windows=moves,
                             pairs=np.array([[0, 1], [1, 2]]))
     _check(run.samples, *_grid_moments(a, y, sigma, 1.0, n=160))
 
@@ -121,7 +121,7 @@ def test_window_moves_on_the_half_line():
     y, sigma = np.array([0.3, 0.25]), 0.2
     moves = window_moves(a, np.array([[0, 1]]), sigma, slow=1e-9)
     run = gibbs_intensities(a, y, sigma, np.inf, np.full((8, 2), 0.2), 3000,
-                            np.random.default_rng(9), n_burn=20, windows=moves)
+                            rng=np.random.default_rng(9), n_burn=20, windows=moves)
     _check(run.samples, *_grid_moments(a, y, sigma, 6.0, n=600))  # mass beyond 6: < 1e-30
 
 
@@ -130,7 +130,7 @@ def test_window_moves_are_refused_with_the_spike():
     moves = window_moves(a, np.array([[0, 1]]), 0.1, slow=1e-9)
     with pytest.raises(ob.InputError, match="windows"):
         gibbs_intensities(a, np.zeros(2), 0.1, 1.0, np.full((2, 2), 0.5), 4,
-                          np.random.default_rng(0), spike=True, windows=moves)
+                          rng=np.random.default_rng(0), spike=True, windows=moves)
 
 
 def test_window_moves_mix_closely_spaced_sources():

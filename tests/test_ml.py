@@ -22,7 +22,7 @@ def _errors(model: ob.Model, est: np.ndarray, scene: ob.Scene) -> np.ndarray:
 
 
 def _efficiency_check(model, scene, n_trials, seed, n_sources):
-    data = model.simulate(scene, seed, size=n_trials)
+    data = model.simulate(scene, rng=seed, size=n_trials)
     res = fit_ml(model, data, n_sources)
     assert res.converged.all()
     err = _errors(model, res.params, scene)
@@ -65,7 +65,7 @@ def test_efficiency_plate_one_source():
 def test_batch_equals_loop():
     model = ob.Model(ob.Ring(24), sigma=3e-2)
     scene = ob.Scene(directions=[-2.0, 0.1, 1.9], intensities=[1.0, 0.7, 0.5])
-    data = model.simulate(scene, 5, size=6)
+    data = model.simulate(scene, rng=5, size=6)
     batch = fit_ml(model, data, 3, warn=False)  # 2 of 6 have a rival mode (sigma = 0.03)
     for i, s in enumerate(data):
         one = fit_ml(model, s, 3, warn=False)
@@ -89,7 +89,7 @@ def test_batch_equals_loop():
     ],
 )
 def test_fast_matches_multistart_on_easy_scenes(model, scene, k):
-    data = model.simulate(scene, 21, size=2)
+    data = model.simulate(scene, rng=21, size=2)
     fast = fit_ml(model, data, k)
     multi = fit_ml(model, data, k, method="multistart", rng=22,
                    options=MultistartOptions(n_starts=6))
@@ -102,7 +102,7 @@ def test_fast_matches_multistart_on_easy_scenes(model, scene, k):
 
 def test_intensities_nonnegative_with_extra_source():
     model = ob.Model(ob.Ring(30), sigma=1e-2)
-    data = model.simulate(ob.Scene(directions=[0.5], intensities=[1.0]), 3, size=20)
+    data = model.simulate(ob.Scene(directions=[0.5], intensities=[1.0]), rng=3, size=20)
     res = fit_ml(model, data, 3, warn=False)  # surplus sources: many equivalent optima
     inten = res.params.reshape(20, 3, 2)[..., 1]
     assert np.all(inten >= 0)
@@ -112,20 +112,20 @@ def test_intensities_nonnegative_with_extra_source():
 def test_result_fields_and_scene():
     model = ob.Model(ob.Ring(30), sigma=1e-2)
     scene = ob.Scene(directions=[2.0, -1.0], intensities=[1.0, 0.5])
-    res = fit_ml(model, model.simulate(scene, 4), 2)
+    res = fit_ml(model, model.simulate(scene, rng=4), 2)
     assert isinstance(res, MLResult) and not res.is_batch and res.n_trials == 1
     assert res.params.shape == (4,) and res.cov.shape == (4, 4) and res.log_likelihood.shape == ()
     np.testing.assert_allclose(res.params, model.canonical(res.params))
     est = res.scene
     assert est.n_sources == 2 and est.directions[0] < est.directions[1]
     np.testing.assert_allclose(est.directions, scene.sorted().directions, atol=0.05)
-    np.testing.assert_allclose(res.log_likelihood, model.log_likelihood(res.params,
-                                                                         model.simulate(scene, 4)))
+    np.testing.assert_allclose(res.log_likelihood,
+                               model.log_likelihood(res.params, model.simulate(scene, rng=4)))
     with pytest.raises(dataclasses.FrozenInstanceError):
         res.method = "x"
     with pytest.raises(ValueError):
         res.params[0] = 1.0
-    batch = fit_ml(model, model.simulate(scene, 4, size=2), 2)
+    batch = fit_ml(model, model.simulate(scene, rng=4, size=2), 2)
     assert batch.scene_at(1).n_sources == 2 and len(batch) == 2
     with pytest.raises(InputError, match="scene_at"):
         batch.scene  # noqa: B018
@@ -133,7 +133,7 @@ def test_result_fields_and_scene():
 
 def test_nonconvergence_is_reported_and_warned():
     model = ob.Model(ob.Ring(30), sigma=1e-2)
-    data = model.simulate(ob.Scene(directions=[0.5, 2.0], intensities=[1, 1]), 6, size=4)
+    data = model.simulate(ob.Scene(directions=[0.5, 2.0], intensities=[1, 1]), rng=6, size=4)
     with pytest.warns(ConvergenceWarning, match="did not meet"):
         res = fit_ml(model, data, 2, options=FastOptions(max_iter=1, n_restarts=0))
     assert not res.converged.all()
@@ -191,7 +191,7 @@ def test_fast_reaches_the_kink_optimum_near_the_truth():
 
     model = ob.Model(ob.Ring(30), sigma=0.1)
     scene = ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2])
-    data = model.simulate(scene, 7, size=12)
+    data = model.simulate(scene, rng=7, size=12)
     fast = fit_ml(model, data, 2)
     x0 = model.canonical(model.pack(scene))
     for s, ll in zip(data, fast.log_likelihood):
@@ -222,7 +222,7 @@ def test_batched_covariance_matches_bound_covariance():
 def test_largest_identifiable_n_sources_runs():
     # K (d + 1) = N: the coarse K-tuple search has no full-rank tuple and is skipped
     model = ob.Model(ob.Ring(30), sigma=1e-2)
-    data = model.simulate(ob.Scene(directions=[0.5, 2.5], intensities=[1.0, 0.7]), 8)
+    data = model.simulate(ob.Scene(directions=[0.5, 2.5], intensities=[1.0, 0.7]), rng=8)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         res = fit_ml(model, data, 15)
@@ -238,7 +238,7 @@ def test_kink_hops_reach_the_neighbouring_cell_minimum():
     model = ob.Model(ob.Ring(30), sigma=1e-2)
     scene = ob.Scene(directions=0.37 + np.radians([0.0, 60.0, 150.0, 260.0]),
                      intensities=np.linspace(1.0, 0.6, 4))
-    data = model.simulate(scene, 31, size=120)
+    data = model.simulate(scene, rng=31, size=120)
     res = fit_ml(model, data, 4, warn=False)  # K = 4 at sigma = 0.01: some rival modes
     truth = np.repeat(model.pack(scene)[None], data.shape[0], axis=0)
     ref = model.log_likelihood(refine_batch(model, data, truth).x, data)
@@ -256,7 +256,7 @@ def test_dedupe_of_runs_keeps_every_optimum(sigma, directions, intensities):
     log L over 3000 fits of each benchmark setting), with fewer evaluations."""
     model = ob.Model(ob.Ring(30), sigma)
     scene = ob.Scene(directions=directions, intensities=intensities)
-    data = model.simulate(scene, 11, size=150)
+    data = model.simulate(scene, rng=11, size=150)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         dedup = fit_ml(model, data, scene.n_sources)
@@ -278,7 +278,7 @@ def test_k4_search_reaches_the_truth_basin_of_a_near_ambiguous_scene():
     scene = ob.Scene(directions=np.radians([-61.5, 0.3, 63.1, 166.5]),
                      intensities=[0.7, 0.93, 0.63, 0.62])
     truth = model.canonical(model.pack(scene))
-    data = model.simulate(scene, np.random.default_rng(3), size=20)
+    data = model.simulate(scene, rng=np.random.default_rng(3), size=20)
     ref = ob.ml.refine_batch(model, data, np.repeat(truth[None], 20, axis=0))
     ll_truth_basin = model.log_likelihood(ref.x, data)
     new = fit_ml(model, data, 4)
@@ -299,7 +299,7 @@ def test_exact_method_is_the_global_optimum_of_close_pairs():
     rng = np.random.default_rng(41)
     for sep in (0.4, 0.8, 1.2):
         scene = ob.Scene(directions=[0.3, 0.3 + sep * 2 * np.pi / 30], intensities=[1.0, 0.8])
-        data = model.simulate(scene, rng, size=6)
+        data = model.simulate(scene, rng=rng, size=6)
         ex = fit_ml(model, data, 2, method="exact")
         fast = fit_ml(model, data, 2, warn=False)  # close pairs: rival modes
         assert np.all(ex.log_likelihood >= fast.log_likelihood - 1e-9)
@@ -385,7 +385,7 @@ def test_rival_gap_reports_rival_modes_and_warns():
     scene = ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2])
     with warnings.catch_warnings():
         warnings.simplefilter("error", ob.MultimodalWarning)
-        res = fit_ml(clean, clean.simulate(scene, 7, size=50), 2)
+        res = fit_ml(clean, clean.simulate(scene, rng=7, size=50), 2)
     assert np.all(np.isinf(res.rival_gap))
 
     model = ob.Model(ob.Ring(30), 1e-2)
@@ -393,7 +393,7 @@ def test_rival_gap_reports_rival_modes_and_warns():
                      intensities=[0.61, 0.58, 0.76, 0.57])
     truth = model.canonical(model.pack(scene))
     std = ob.crlb(model, scene.sorted()).std
-    data = model.simulate(scene, np.random.default_rng(8), size=40)
+    data = model.simulate(scene, rng=np.random.default_rng(8), size=40)
     with pytest.warns(ob.MultimodalWarning, match="distinct local optimum"):
         res = fit_ml(model, data, 4)
     far = np.any(np.abs(ob.exchange.estimation_errors(model, res.params, truth)) > 5 * std, axis=1)
@@ -414,24 +414,24 @@ def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum():
     h = 2 * np.pi / 30
     for sep, i2 in ((0.4, 0.9), (0.8, 0.6), (1.3, 1.0), (3.0, 0.7)):
         scene = ob.Scene(directions=[-1.0, -1.0 + sep * h], intensities=[1.0, i2])
-        data = model.simulate(scene, rng, size=8)
+        data = model.simulate(scene, rng=rng, size=8)
         fast = fit_ml(model, data, 2, warn=False)
         ex = fit_ml(model, data, 2, method="exact")
         np.testing.assert_allclose(fast.log_likelihood, ex.log_likelihood, rtol=0, atol=1e-6)
     for sep in (0.5, 1.0):  # K = 3: a close pair and a third source across the ring
         scene = ob.Scene(directions=[0.2, 0.2 + sep * h, 0.2 + 2.8], intensities=[1.0, 0.7, 0.8])
-        data = model.simulate(scene, rng, size=6)
+        data = model.simulate(scene, rng=rng, size=6)
         np.testing.assert_allclose(fit_ml(model, data, 3, warn=False).log_likelihood,
                                    fit_ml(model, data, 3, method="exact").log_likelihood,
                                    rtol=0, atol=1e-6)
-    lone = model.simulate(ob.Scene(directions=[0.3], intensities=[1.0]), rng, size=4)
+    lone = model.simulate(ob.Scene(directions=[0.3], intensities=[1.0]), rng=rng, size=4)
     over = fit_ml(model, lone, 2, warn=False)  # a surplus source switched off: escalated
     np.testing.assert_allclose(over.log_likelihood,
                                fit_ml(model, lone, 2, method="exact").log_likelihood,
                                rtol=0, atol=1e-6)
     fig3 = ob.Model(ob.Ring(30), 1e-2)
     data = fig3.simulate(ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2]),
-                         rng, size=20)
+                         rng=rng, size=20)
     on = fit_ml(fig3, data, 2)
     off = fit_ml(fig3, data, 2, options=FastOptions(escalate=False))
     np.testing.assert_array_equal(on.params, off.params)

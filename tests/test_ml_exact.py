@@ -74,7 +74,7 @@ def test_fast_fit_reaches_the_global_optimum(k):
     model = ob.Model(ob.Ring(30), sigma=1e-2)
     rng = np.random.default_rng(100 + k)
     for _ in range(10):
-        data = model.simulate(_random_scene(rng, k), rng, size=3)
+        data = model.simulate(_random_scene(rng, k), rng=rng, size=3)
         exact = fit_exact(model, data, k)
         fast = fit_ml(model, data, k)
         assert np.all(fast.log_likelihood >= exact.log_likelihood - 1e-6)
@@ -83,7 +83,7 @@ def test_fast_fit_reaches_the_global_optimum(k):
 
 def test_batch_equals_loop_and_odd_ring():
     model = ob.Model(ob.Ring(9, offset=-0.3), sigma=0.05)
-    data = model.simulate(ob.Scene(directions=[0.0, 2.0], intensities=[1.0, 0.8]), 5, size=3)
+    data = model.simulate(ob.Scene(directions=[0.0, 2.0], intensities=[1.0, 0.8]), rng=5, size=3)
     batch = fit_exact(model, data, 2)
     assert batch.is_batch
     for t in range(3):
@@ -131,7 +131,7 @@ def test_compiled_scan_equals_numpy_reference(n, k):
 
     model = ob.Model(ob.Ring(n, offset=0.05 * n), sigma=0.05)
     data = model.simulate(ob.Scene(directions=[-2.0, 0.1, 1.7][:k],
-                                   intensities=[1.0, 0.6, 0.8][:k]), 11, size=4)
+                                   intensities=[1.0, 0.6, 0.8][:k]), rng=11, size=4)
     c, cols = _design(model)
     args = (cols.T @ cols, data @ cols, np.column_stack([np.cos(c), np.sin(c)]), k,
             RERANK_RTOL * np.einsum("tn,tn->t", data, data), RANK_RTOL, FEAS_RTOL, 64)

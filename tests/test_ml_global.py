@@ -25,7 +25,7 @@ def test_k3_search_finds_the_global_mode_of_a_near_equilateral_scene():
 
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=[-1.94, 0.21, 1.93], intensities=[0.72, 0.54, 0.62])
-    data = model.simulate(scene, 7, size=60)
+    data = model.simulate(scene, rng=7, size=60)
     best = model.log_likelihood(fit_exact(model, data, 3).params, data)
     new = fit_ml(model, data, 3, warn=False).log_likelihood
     assert np.all(new >= best - 1e-6)
@@ -47,7 +47,7 @@ def test_runs_stopped_in_a_known_cell_change_no_fit(sigma, directions, intensiti
     ~35 % fewer evaluations."""
     model = ob.Model(ob.Ring(30), sigma)
     scene = ob.Scene(directions=directions, intensities=intensities)
-    data = model.simulate(scene, 13, size=150)
+    data = model.simulate(scene, rng=13, size=150)
     cells = fit_ml(model, data, scene.n_sources, warn=False)
     full = fit_ml(model, data, scene.n_sources, options=FastOptions(cell_stop=False),
                   warn=False)
@@ -65,7 +65,7 @@ def test_k4_fast_fit_is_the_exact_ml_whose_mode_jumps_cost_efficiency():
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=0.37 + np.radians([0.0, 60.0, 150.0, 260.0]),
                      intensities=[1.0, 0.87, 0.73, 0.6])
-    data = model.simulate(scene, 1, size=40)
+    data = model.simulate(scene, rng=1, size=40)
     best = fit_exact(model, data, 4).log_likelihood
     assert np.all(fit_ml(model, data, 4, warn=False).log_likelihood >= best - 1e-6)
     truth = model.canonical(model.pack(scene))

@@ -56,7 +56,7 @@ def test_ring_matches_numpy(law):
     model = ob.Model(ob.Ring(30), 1e-2, law)
     scene = ob.Scene(directions=[0.4, 2.5, -1.9], intensities=[1.0, 0.7, 0.5])
     truth = model.pack(scene)
-    data = model.simulate(scene, 1, size=40)
+    data = model.simulate(scene, rng=1, size=40)
     _compare(model, truth, data, _starts(model, truth, 2, 40, 0.03))
 
 
@@ -64,7 +64,7 @@ def test_sphere_matches_numpy():
     model = ob.Model(ob.Sphere.fibonacci(120), 1e-2)
     scene = ob.Scene(directions=[[0.4, 0.2], [2.5, -0.5]], intensities=[1.0, 0.6])
     truth = model.pack(scene)
-    data = model.simulate(scene, 3, size=30)
+    data = model.simulate(scene, rng=3, size=30)
     _compare(model, truth, data, _starts(model, truth, 4, 30, 0.03))
 
 
@@ -72,7 +72,7 @@ def test_plate_matches_numpy():
     model = ob.Model(ob.Plate.grid(6, 6, pitch=1.0), 1e-3)
     scene = ob.Scene(positions=[[2.0, 2.5, 3.0], [3.5, 1.0, 2.0]], intensities=[10.0, 6.0])
     truth = model.pack(scene)
-    data = model.simulate(scene, 5, size=30)
+    data = model.simulate(scene, rng=5, size=30)
     _compare(model, truth, data, _starts(model, truth, 6, 30, 0.05))
 
 
@@ -81,7 +81,7 @@ def test_intensity_at_bound():
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.0])
     truth = model.pack(scene)
-    data = model.simulate(scene, 7, size=40)
+    data = model.simulate(scene, rng=7, size=40)
     x0 = _starts(model, truth, 8, 40, 0.02)
     x0[:, 3] = 0.05
     sd = _crlb_sd(model, model.pack(ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.5])))
@@ -100,7 +100,7 @@ def test_frozen_parameter():
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
     truth = model.pack(scene)
-    data = model.simulate(scene, 9, size=30)
+    data = model.simulate(scene, rng=9, size=30)
     x0 = _starts(model, truth, 10, 30, 0.02)
     frozen = np.zeros(x0.shape, bool)
     frozen[:, 2] = True  # second source's angle held at its start
@@ -116,7 +116,7 @@ def test_source_on_kink():
     kink = ring.angles[3] + np.pi / 2
     scene = ob.Scene(directions=[kink, 2.0], intensities=[1.0, 0.5])
     truth = model.pack(scene)
-    data = model.simulate(scene, 11, size=40)
+    data = model.simulate(scene, rng=11, size=40)
     x0 = _starts(model, truth, 12, 40, 0.02)
     x0[:, 0] = kink
     frozen = np.zeros(x0.shape, bool)
@@ -130,7 +130,7 @@ def test_batch_equals_loop_exactly():
     model = ob.Model(ob.Sphere.fibonacci(60), 1e-2)
     scene = ob.Scene(directions=[[0.4, 0.2], [2.5, -0.5]], intensities=[1.0, 0.6])
     truth = model.pack(scene)
-    data = model.simulate(scene, 13, size=12)
+    data = model.simulate(scene, rng=13, size=12)
     x0 = _starts(model, truth, 14, 12, 0.05)
     a = refine_batch(model, data, x0)
     for i in range(12):
@@ -142,7 +142,7 @@ def test_batch_equals_loop_exactly():
 def test_max_iter_and_counts_match_numpy():
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
-    data = model.simulate(scene, 15, size=10)
+    data = model.simulate(scene, rng=15, size=10)
     x0 = _starts(model, model.pack(scene), 16, 10, 0.3)
     a = refine_batch(model, data, x0, max_iter=2)
     b = refine_batch_numpy(model, data, x0, max_iter=2)
@@ -156,7 +156,7 @@ def test_custom_law_takes_numpy_path():
     model = ob.Model(ob.Ring(30), 1e-2, law)
     assert not _kernel.supports(model)
     scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
-    data = model.simulate(scene, 17, size=5)
+    data = model.simulate(scene, rng=17, size=5)
     x0 = _starts(model, model.pack(scene), 18, 5, 0.02)
     a = refine_batch(model, data, x0)
     b = refine_batch_numpy(model, data, x0)
@@ -169,7 +169,7 @@ def test_fit_ml_same_optimum_as_numpy_path(k, monkeypatch):
     model = ob.Model(ob.Ring(30), 1e-2)
     ang = 0.37 + 2 * np.pi * np.arange(k) / k + 0.13 * np.arange(k)
     scene = ob.Scene(directions=ang, intensities=np.linspace(1.0, 0.6, k))
-    data = model.simulate(scene, 19, size=60)
+    data = model.simulate(scene, rng=19, size=60)
     a = ob.fit_ml(model, data, k)
     monkeypatch.setattr(_kernel, "supports", lambda model: False)
     b = ob.fit_ml(model, data, k)
@@ -191,7 +191,7 @@ def test_chi2_fisher_matches_model(geometry):
         model = ob.Model(ob.Plate.grid(5, 5, pitch=1.0), 1e-3)
         scene = ob.Scene(positions=[[2.0, 2.5, 3.0]], intensities=[10.0])
     truth = model.pack(scene)
-    data = model.simulate(scene, 23, size=6)
+    data = model.simulate(scene, rng=23, size=6)
     x = _starts(model, truth, 24, 6, 0.01)
     chi2, fisher = _fit_kernel.chi2_fisher(model, x, data)
     ll = model.log_likelihood(x, data)
@@ -281,7 +281,7 @@ def test_kink_cuts_same_best_fewer_evaluations():
 
     model = ob.Model(ob.Ring(30), 0.1)
     scene = ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2])
-    data = model.simulate(scene, 5, size=150)
+    data = model.simulate(scene, rng=5, size=150)
     grid = cached_default_grid(model)
     idx, inten, _ = grid_search(atoms(model, grid), data, 2, search_options(2))
     t, c = idx.shape[:2]
@@ -333,7 +333,7 @@ def test_numpy_lm_stops_at_known_optima_like_the_kernel():
     builtin = ob.Model(ob.Ring(24), 1e-2, ob.CosinePower(3))
     scene = ob.Scene(directions=[0.4, 2.5], intensities=[1.0, 0.6])
     t, c = 6, 5
-    data = custom.simulate(scene, 31, size=t)
+    data = custom.simulate(scene, rng=31, size=t)
     x0 = _starts(custom, custom.pack(scene), 32, t * c, 0.05)
     rep = np.repeat(data, c, axis=0)
     base = np.full((t, x0.shape[1]), np.nan)
@@ -360,7 +360,7 @@ def test_fast_fit_of_a_custom_law_equals_the_builtin_law():
     custom = ob.Model(ob.Ring(24), 1e-2, law)
     builtin = ob.Model(ob.Ring(24), 1e-2, ob.CosinePower(3))
     scene = ob.Scene(directions=[0.4, 2.5, -1.7], intensities=[1.0, 0.6, 0.8])
-    data = custom.simulate(scene, 33, size=20)
+    data = custom.simulate(scene, rng=33, size=20)
     a = ob.fit_ml(custom, data, 3, warn=False)
     b = ob.fit_ml(builtin, data, 3, warn=False)
     np.testing.assert_allclose(a.log_likelihood, b.log_likelihood, rtol=0,

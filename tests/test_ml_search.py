@@ -31,7 +31,7 @@ def test_compiled_search_matches_numpy(case):
     else:
         k, model = 1, ob.Model(ob.Plate.grid(5, 5, pitch=1.0), 1e-3)
         scene = ob.Scene(positions=[[2.0, 2.5, 3.0]], intensities=[10.0])
-    data = model.simulate(scene, 21, size=100)
+    data = model.simulate(scene, rng=21, size=100)
     g = atoms(model, default_grid(model))
     a_idx, a_int, a_rss = grid_search(g, data, k, search_options(k))
     b_idx, b_int, b_rss = grid_search_numpy(g, data, k, search_options(k))
@@ -54,7 +54,7 @@ def test_search_without_pursuit_is_the_tuples():
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=0.37 + np.radians([0.0, 60.0, 150.0, 260.0]),
                      intensities=np.linspace(1.0, 0.6, 4))
-    data = model.simulate(scene, 23, size=40)
+    data = model.simulate(scene, rng=23, size=40)
     g = atoms(model, default_grid(model))
     n_p = len(plans(g, 4, 6))
     full = grid_search(g, data, 4, search_options(4, n_coarse=6))
@@ -75,7 +75,7 @@ def test_compiled_search_batch_equals_loop():
 
     model = ob.Model(ob.Ring(30), 1e-2)
     scene = ob.Scene(directions=[0.4, 2.5, -1.9], intensities=[1.0, 0.7, 0.5])
-    data = model.simulate(scene, 22, size=8)
+    data = model.simulate(scene, rng=22, size=8)
     g = atoms(model, default_grid(model))
     full = grid_search(g, data, 3, search_options(3))
     for i in range(8):
@@ -106,7 +106,7 @@ def _tuple_case(k: int, dtype):
     rng = np.random.default_rng(3)
     scene = ob.Scene(directions=rng.uniform(0, 2 * np.pi, k),
                      intensities=np.linspace(1.0, 0.3, k))
-    data = model.simulate(scene, rng, size=12)
+    data = model.simulate(scene, rng=rng, size=12)
     g = atoms(model, cached_default_grid(model))
     plan = plans(g, k, 1, dtype=dtype)[0]
     corr = data @ plan.atoms.T
@@ -183,7 +183,7 @@ def test_blocked_tuple_search_equals_per_trial(k):
     rng = np.random.default_rng(8)
     scene = ob.Scene(directions=rng.uniform(0, 2 * np.pi, k),
                      intensities=np.linspace(1.0, 0.3, k))
-    data = model.simulate(scene, rng, size=2 * tk.TUPLE_BLOCK + 5)
+    data = model.simulate(scene, rng=rng, size=2 * tk.TUPLE_BLOCK + 5)
     g = atoms(model, cached_default_grid(model))
     for plan in plans(g, k, 3):
         views = _plan_views(plan)
@@ -211,7 +211,7 @@ def test_search_gram_route_equals_atom_route(monkeypatch):
 
     model = ob.Model(ob.Ring(30), 1e-2)
     ang = 0.37 + 2 * np.pi * np.arange(3) / 3 + 0.13 * np.arange(3)
-    data = model.simulate(ob.Scene(directions=ang, intensities=[1.0, 0.8, 0.6]), 4, size=200)
+    data = model.simulate(ob.Scene(directions=ang, intensities=[1.0, 0.8, 0.6]), rng=4, size=200)
     g = atoms(model, cached_default_grid(model))
     a = search.grid_search(g, data, 3, search_options(3))
     monkeypatch.setattr(search, "_GRAM_ATOMS", 0)

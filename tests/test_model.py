@@ -89,7 +89,7 @@ def test_batched_equals_loop_of_single_calls(geometry):
     model = Model(ARRAYS[geometry](), SIGMA, CosinePower(2.0))
     rng = np.random.default_rng(5)
     x = _params(model.kind, rng, k=3, batch=(4, 3))
-    data = model.simulate(_params(model.kind, rng, k=3), rng)
+    data = model.simulate(_params(model.kind, rng, k=3), rng=rng)
     resp, jac, fish = model.response(x), model.jacobian(x), model.fisher(x)
     logl = model.log_likelihood(x, data)
     assert resp.shape == (4, 3, model.n_sensors)
@@ -172,7 +172,7 @@ def test_log_likelihood_broadcasts_and_matches_gaussian():
     model = Model(Ring(12), 0.05)
     rng = np.random.default_rng(2)
     x = _params("angle", rng, k=1)
-    data = model.simulate(x, rng, size=3)
+    data = model.simulate(x, rng=rng, size=3)
     logl = model.log_likelihood(x, data)
     resid = data - model.response(x)
     expect = (-0.5 * (resid**2).sum(-1) / 0.05**2
@@ -183,8 +183,8 @@ def test_log_likelihood_broadcasts_and_matches_gaussian():
 def test_simulate_noise_has_sigma_and_is_reproducible():
     model = Model(Ring(30), 0.02)
     scene = Scene(directions=[0.5], intensities=[1.0])
-    a = model.simulate(scene, 3, size=4000)
-    np.testing.assert_array_equal(a, model.simulate(scene, np.random.default_rng(3), size=4000))
+    a = model.simulate(scene, rng=3, size=4000)
+    np.testing.assert_array_equal(a, model.simulate(scene, rng=np.random.default_rng(3), size=4000))
     resid = a - model.response(scene)
     sd = resid.std()
     # sampling sd of a std estimate from M = 120000 draws: sigma / sqrt(2 M)

@@ -121,7 +121,7 @@ def test_crlb_scales_with_sigma(case, factor):
 def test_wrapping_ring_angles_never_changes_the_likelihood(case, turns, seed):
     n, theta, inten = case
     model = Model(Ring(n), 0.05)
-    data = model.simulate(_flat(theta, inten), seed)
+    data = model.simulate(_flat(theta, inten), rng=seed)
     wrapped = theta + 2 * np.pi * turns[: theta.size]
     ll, ll_wrapped = model.log_likelihood(_flat(theta, inten), data), model.log_likelihood(
         _flat(wrapped, inten), data)

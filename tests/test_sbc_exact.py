@@ -43,7 +43,7 @@ def test_one_dim_source_matches_quadrature():
     # dim source: the intensity prior's edge at 0 matters, the direction is broad
     rng = np.random.default_rng(3)
     truth = np.array([0.7, 0.03])
-    data = MODEL.simulate(truth, rng)
+    data = MODEL.simulate(truth, rng=rng)
     draws, w = exact_ring_posterior(MODEL, data, 1, I_MAX, rng=rng, n_grid=1024, per_cell=8)
     axes = [np.linspace(-np.pi, np.pi, 2000, endpoint=False), np.linspace(0.0005, 0.5995, 600)]
     p = _grid_posterior(data, axes)
@@ -60,7 +60,7 @@ def test_two_sources_match_quadrature():
     # a close pair (0.6 rad): the Fisher volume sqrt(det) varies across the posterior
     rng = np.random.default_rng(1)
     truth = np.array([0.0, 1.0, 0.6, 0.8])
-    data = MODEL.simulate(truth, rng)
+    data = MODEL.simulate(truth, rng=rng)
     draws, w = exact_ring_posterior(MODEL, data, 2, I_MAX, rng=rng, n_grid=512, per_cell=16)
     mean = w @ draws
     sd = np.sqrt(w @ (draws - mean) ** 2)

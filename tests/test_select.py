@@ -37,7 +37,7 @@ SCENES = {
 
 def _data(k: int, seed: int) -> np.ndarray:
     x = np.array(SCENES[k], dtype=float).ravel()
-    return MODEL.simulate(x, np.random.default_rng([k, seed]))
+    return MODEL.simulate(x, rng=np.random.default_rng([k, seed]))
 
 
 @pytest.mark.parametrize("k", sorted(SCENES))
@@ -73,7 +73,7 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
     (no warning: that estimate is precise); the bare Laplace rule (importance_draws=0)
     warns.  auto sends K=1 (and only K=1) to nested sampling, which agrees with the
     importance-sampling value within 3 combined standard errors."""
-    data = MODEL.simulate(np.array([0.3, 0.02]), np.random.default_rng(4))
+    data = MODEL.simulate(np.array([0.3, 0.02]), rng=np.random.default_rng(4))
     with pytest.warns(EvidenceWarning, match="not to be trusted"):
         bare = select_k(MODEL, data, k_max=1, method="laplace", rng=3, i_max=2.0,
                         options=SelectOptions(laplace=LaplaceOptions(importance_draws=0)))
@@ -98,7 +98,7 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
 def test_a_nested_run_stopped_by_the_call_cap_is_flagged_in_the_table():
     from olsbayes.errors import ConvergenceWarning
 
-    data = MODEL.simulate(np.array([0.3, 0.02]), np.random.default_rng(4))
+    data = MODEL.simulate(np.array([0.3, 0.02]), rng=np.random.default_rng(4))
     with pytest.warns(ConvergenceWarning, match="maxcall"):
         res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0,
                        options=SelectOptions(nested=NestedOptions(n_live=50, maxcall=1000)))
@@ -281,12 +281,12 @@ def test_sphere_and_plate_models_are_supported():
 
     sphere = Model(Sphere.fibonacci(60), 0.01)
     x = np.array([0.3, 0.2, 1.0, 2.0, -0.5, 0.7])  # two sources 1.9 rad apart
-    res = select_k(sphere, sphere.simulate(x, np.random.default_rng(1)), k_max=3,
+    res = select_k(sphere, sphere.simulate(x, rng=np.random.default_rng(1)), k_max=3,
                    method="laplace", rng=0, i_max=2.0)
     assert res.best == 2
     plate = Model(Plate.grid(6, 6, 1.0), 0.01)
     x = np.array([0.5, 0.3, 2.0, 5.0])
-    res = select_k(plate, plate.simulate(x, np.random.default_rng(1)), k_max=2,
+    res = select_k(plate, plate.simulate(x, rng=np.random.default_rng(1)), k_max=2,
                    method="laplace", rng=0)  # i_max from the data, over the default box
     assert res.best == 1
 
@@ -300,7 +300,7 @@ def test_ml_points_are_consistent_across_k():
     """Nested models: max log L never falls as K grows, and the K=3 optimum of a scene
     on which the greedy search once missed it is at least as good as the truth."""
     x = np.array([-2.5, 1.0, 0.3, 0.7, 2.0, 0.5])
-    data = MODEL.simulate(x, np.random.default_rng(5))
+    data = MODEL.simulate(x, rng=np.random.default_rng(5))
     res = select_k(MODEL, data, k_max=4, method="laplace", rng=0, i_max=2.0)
     ll = [ev.log_likelihood for ev in res.evidences]
     assert all(b >= a - 1e-6 for a, b in zip(ll[1:], ll[2:]))
@@ -338,7 +338,7 @@ def test_auto_does_not_escalate_a_hopeless_k_on_a_three_source_scene():
     source brighter than i_max (no Laplace value) but loses by ~2e4 nats -- no nested run."""
     h = 2 * np.pi / 30
     x = np.array([-2.2, 0.8, 0.2, 1.0, 0.2 + 0.5 * h, 1.0])
-    data = MODEL.simulate(x, np.random.default_rng(11))
+    data = MODEL.simulate(x, rng=np.random.default_rng(11))
     res = select_k(MODEL, data, k_max=4, method="auto", rng=0, i_max=2.0)
     assert not np.isfinite(res[1].laplace) and res[1].log_likelihood < res[2].log_evidence - 1e3
     assert res.escalated == {} and res.best == 2  # the pair is one source to this sensor

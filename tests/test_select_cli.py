@@ -22,7 +22,7 @@ def test_select_json_on_the_default_scene(capsys):
 def test_select_table_from_a_data_file_and_a_select_section(tmp_path, capsys):
     from olsbayes import Model, Ring
 
-    data = Model(Ring(30), 0.01).simulate(np.array([0.4, 1.0]), np.random.default_rng(2))
+    data = Model(Ring(30), 0.01).simulate(np.array([0.4, 1.0]), rng=np.random.default_rng(2))
     f = tmp_path / "r.txt"
     np.savetxt(f, data[None, :])
     cfg = tmp_path / "s.toml"

@@ -92,7 +92,7 @@ def test_model_laplace_matches_brute_force_quadrature_for_one_source():
     model = Model(Ring(30), 0.02)
     prior = ScenePrior(model, 1, Uniform(0.0, 2.0))
     x0 = np.array([0.0, 1.0])
-    data = model.simulate(x0, np.random.default_rng(3))
+    data = model.simulate(x0, rng=np.random.default_rng(3))
     from olsbayes.ml import fit_ml
 
     fit = fit_ml(model, data, 1)
@@ -195,7 +195,7 @@ def test_laplace_matches_importance_sampling_on_a_two_source_scene():
     from olsbayes.select.importance import importance_log_evidence
 
     prior = ScenePrior(RING, 2, Uniform(0.0, 2.0))
-    data = RING.simulate(np.array([-0.6, 1.0, 1.5, 0.6]), np.random.default_rng([2, 0]))
+    data = RING.simulate(np.array([-0.6, 1.0, 1.5, 0.6]), rng=np.random.default_rng([2, 0]))
     fit = fit_ml(RING, data, 2)
     log_z, fisher, _ = model_laplace(RING, fit.params, fit.log_likelihood, prior)
     is_z, se = importance_log_evidence(RING, data, fit.params, np.linalg.inv(fisher), prior,
@@ -215,7 +215,7 @@ def test_disagreeing_laplace_and_nested_evidences_warn():
 
     model = Model(Ring(30), 0.05)
     prior = ScenePrior(model, 1, Uniform(0.0, 2.0))
-    data = model.simulate(np.array([0.0, 1.0]), np.random.default_rng(3))
+    data = model.simulate(np.array([0.0, 1.0]), rng=np.random.default_rng(3))
     fit = fit_ml(model, data, 1)
     work = laplace_work(model, 1, (fit, fit.params, float(fit.log_likelihood), "fit_ml"),
                         prior, None)

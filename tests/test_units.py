@@ -29,7 +29,7 @@ def _case(c: float, k: int, size: int):
     scene = ob.Scene(directions=ang, intensities=np.linspace(1.0, 0.6, k) * c)
     unit = ob.Model(ob.Ring(30), 1e-2)
     data = unit.simulate(ob.Scene(directions=ang, intensities=np.linspace(1.0, 0.6, k)),
-                         np.random.default_rng(k), size=size)
+                         rng=np.random.default_rng(k), size=size)
     return model, scene, unit, data
 
 

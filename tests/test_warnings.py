@@ -53,7 +53,7 @@ def test_source_on_the_kink_warns_only_for_kinked_laws():
 
 def test_ml_fit_stopped_early_warns():
     model = ob.Model(ob.Ring(30), 0.01)
-    data = model.simulate(ob.Scene(directions=[0.5, 2.0], intensities=[1.0, 1.0]), 6, size=3)
+    data = model.simulate(ob.Scene(directions=[0.5, 2.0], intensities=[1.0, 1.0]), rng=6, size=3)
     with pytest.warns(ob.ConvergenceWarning):
         res = ob.fit_ml(model, data, 2, options=ob.ml.FastOptions(max_iter=1, n_restarts=0))
     assert not np.all(res.converged)

@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"--repeats {reps} x {model.n_sensors} sub-sensors exceeds {MAX_READINGS} readings"
         )
-    readings = model.simulate(scene, seed, size=reps)
+    readings = model.simulate(scene, rng=seed, size=reps)
     header = (
         f"olsbayes simulate: {model!r}; {scene!r}; seed={seed}; "
         f"{reps} row(s) of {model.n_sensors} readings"

@@ -84,8 +84,8 @@ def two_level_gibbs(
     s0: np.ndarray,
     groups: np.ndarray,
     n_samples: int,
-    rng: np.random.Generator,
     *,
+    rng: np.random.Generator,
     p_bright: float = 0.5,
     n_burn: int = 100,
 ) -> BinaryGibbs:

@@ -177,7 +177,7 @@ def _sampled(model, loc, a, y, mode, design, prior, opts, gen):
     elif opts.sampler == "eigen":
         k = a.shape[1]
         run = eigen_gibbs(a.T @ a / sigma**2, a.T @ y / sigma**2, np.zeros(k), np.full(k, hi),
-                          x0, opts.n_samples, gen, n_burn=opts.n_burn)
+                          x0, opts.n_samples, rng=gen, n_burn=opts.n_burn)
         draws = run.samples
     else:
         draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen, design)
@@ -193,7 +193,7 @@ def _gibbs(model, loc, a, y, x0, prior, opts, gen):
     elif opts.window and a.shape[1] > 1:
         extra["windows"] = window_moves(a, neighbour_groups(model, loc, opts.window),
                                         model.sigma)
-    run = gibbs_intensities(a, y, model.sigma, prior.upper, x0, opts.n_samples, gen,
+    run = gibbs_intensities(a, y, model.sigma, prior.upper, x0, opts.n_samples, rng=gen,
                             n_burn=opts.n_burn, spike=spike,
                             pairs=neighbour_pairs(model, loc, opts.neighbours), **extra)
     return run.samples
@@ -214,7 +214,7 @@ def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design):
     full = design.nullity == 0 and design.singular_values[-1] / sigma > 1e-3 / scale
     ridge = 0.0 if full else 1.0 / scale**2
     run = sample_truncated_gaussian(
-        q, b, np.zeros(k), np.full(k, hi), x0, n_samples, gen, n_burn=n_burn, ridge=ridge,
+        q, b, np.zeros(k), np.full(k, hi), x0, n_samples, rng=gen, n_burn=n_burn, ridge=ridge,
         centre=np.full(k, 0.5 * scale),
     )
     return run.samples, run.acceptance

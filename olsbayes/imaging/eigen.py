@@ -66,7 +66,7 @@ def _line_draw(h, lam, lo, hi, rng):
     if np.any(~flat):
         lam_s = max(lam, 1e-300)
         g = ~flat
-        out[g] = truncnorm_1d(h[g] / lam_s, 1.0 / np.sqrt(lam_s), lo[g], hi[g], rng)
+        out[g] = truncnorm_1d(h[g] / lam_s, 1.0 / np.sqrt(lam_s), lo[g], hi[g], rng=rng)
     return np.clip(out, lo, hi)
 
 
@@ -77,8 +77,8 @@ def eigen_gibbs(
     upper: np.ndarray,
     x0: np.ndarray,
     n_samples: int,
-    rng: np.random.Generator,
     *,
+    rng: np.random.Generator,
     n_burn: int = 100,
     coordinate: bool = True,
 ) -> TruncatedSamples:
@@ -121,7 +121,7 @@ def eigen_gibbs(
                 if qd[j] <= 0:
                     continue
                 m = x[:, j] + (linear[j] - qx[:, j]) / qd[j]
-                new = truncnorm_1d(m, 1.0 / np.sqrt(qd[j]), lower[j], upper[j], rng)
+                new = truncnorm_1d(m, 1.0 / np.sqrt(qd[j]), lower[j], upper[j], rng=rng)
                 qx += np.outer(new - x[:, j], q[j])
                 x[:, j] = new
         for j in rng.permutation(k):

@@ -59,7 +59,7 @@ def _site(x, r, k, a_k, norm2, sigma, i_max, log_w, log_1mw, spike, rng):
     """Exact draw of (z_k, I_k) given the rest, for every chain; updates x, r in place."""
     m = x[:, k] + (r @ a_k) / norm2
     s = sigma / np.sqrt(norm2)
-    new = truncnorm_1d(m, s, 0.0, i_max, rng)
+    new = truncnorm_1d(m, s, 0.0, i_max, rng=rng)
     if spike:
         log_slab = (
             log_w - np.log(i_max) + np.log(s * np.sqrt(2 * np.pi))
@@ -81,7 +81,7 @@ def _pair(x, r, k, j, d_kl, norm2, sigma, i_max, spike, rng):
     t_lo = np.maximum(-x[:, k], x[:, j] - i_max)
     t_hi = np.minimum(i_max - x[:, k], x[:, j])
     rd = r @ d_kl
-    t = truncnorm_1d(rd / norm2, sigma / np.sqrt(norm2), t_lo, t_hi, rng)
+    t = truncnorm_1d(rd / norm2, sigma / np.sqrt(norm2), t_lo, t_hi, rng=rng)
     if spike:
         on_k, on_j = x[:, k] > 0, x[:, j] > 0
         swap = x[:, j] - x[:, k]
@@ -100,8 +100,8 @@ def gibbs_intensities(
     i_max: float,
     x0: np.ndarray,
     n_samples: int,
-    rng: np.random.Generator,
     *,
+    rng: np.random.Generator,
     n_burn: int = 100,
     spike: bool = False,
     w_prior: tuple[float, float] = (1.0, 1.0),
@@ -158,7 +158,7 @@ def gibbs_intensities(
         log_w = np.log(w)
         log_1mw = np.log1p(-w) if spike else None
         if compiled is not None:
-            window_sweep(x, r, compiled, sigma, i_max, rng)
+            window_sweep(x, r, compiled, sigma, i_max, rng=rng)
         for j in rng.permutation(k) if compiled is None else ():
             _site(x, r, j, cols[j], norm2[j], sigma, i_max, log_w, log_1mw, spike, rng)
         for p in rng.permutation(pairs.shape[0]) if compiled is None else ():

@@ -55,7 +55,8 @@ class TruncatedSamples:
 
 
 def truncnorm_1d(
-    mean: np.ndarray, sd: np.ndarray, lower: np.ndarray, upper: np.ndarray, rng: np.random.Generator
+    mean: np.ndarray, sd: np.ndarray, lower: np.ndarray, upper: np.ndarray, *,
+    rng: np.random.Generator,
 ) -> np.ndarray:
     """Draws of N(mean, sd^2) truncated to [lower, upper], broadcast elementwise.
 
@@ -145,8 +146,8 @@ def sample_truncated_gaussian(
     upper: np.ndarray,
     x0: np.ndarray,
     n_samples: int,
-    rng: np.random.Generator,
     *,
+    rng: np.random.Generator,
     n_burn: int = 50,
     ridge: float = 0.0,
     centre: np.ndarray | None = None,

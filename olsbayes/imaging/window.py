@@ -145,7 +145,7 @@ def combine(*moves: WindowMoves) -> WindowMoves:
 
 def window_sweep(
     x: np.ndarray, r: np.ndarray, moves: WindowMoves, sigma: float, i_max: float,
-    rng: np.random.Generator,
+    *, rng: np.random.Generator,
 ) -> None:
     """One exact Gibbs move along every window direction (random order), in place.
 

@@ -42,8 +42,9 @@ def _run_multistart(model, s, k, grid, options, gen, scale) -> FitOutcome:
     """Data divided by ``scale`` (T,): sigma scaled alike per data vector (the
     objective is in units of sigma), in order (one rng stream)."""
     if np.all(scale == 1.0):
-        return fit_multistart(model, s, k, grid, gen, options)
-    parts = [fit_multistart(scaled_model(model, float(c)), s[i : i + 1], k, grid, gen, options)
+        return fit_multistart(model, s, k, grid, options, rng=gen)
+    parts = [fit_multistart(scaled_model(model, float(c)), s[i : i + 1], k, grid, options,
+                            rng=gen)
              for i, c in enumerate(scale)]
     return FitOutcome(*(np.concatenate([getattr(o, f) for o in parts])
                         for f in ("x", "chi2", "converged", "n_evaluations")),

@@ -48,7 +48,7 @@ class MultistartOptions:
 
 def random_starts(
     model: Model, data: np.ndarray, n_sources: int, n: int, grid: np.ndarray,
-    rng: np.random.Generator,
+    *, rng: np.random.Generator,
 ) -> np.ndarray:
     """``n`` pseudo-random starting vectors for one data vector, shape (n, P)."""
     k = n_sources
@@ -129,7 +129,7 @@ def _converged(model: Model, res) -> bool:
 
 
 def fit_multistart(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
-                   rng: np.random.Generator, options: MultistartOptions) -> FitOutcome:
+                   options: MultistartOptions, *, rng: np.random.Generator) -> FitOutcome:
     """Multi-start L-BFGS-B fits of a batch ``data`` (T, N), one data vector at a time.
 
     Starts for data vector i are drawn from ``rng`` in order, so the result of a
@@ -142,7 +142,7 @@ def fit_multistart(model: Model, data: np.ndarray, n_sources: int, grid: np.ndar
     conv, nev = np.empty(t, bool), np.empty(t, np.int64)
     alt_x, alt_chi2 = np.empty((t, n_starts, p)), np.empty((t, n_starts))
     for i in range(t):
-        starts = random_starts(model, data[i], n_sources, n_starts, grid, rng)
+        starts = random_starts(model, data[i], n_sources, n_starts, grid, rng=rng)
         x[i], chi2[i], conv[i], nev[i], alt_x[i], alt_chi2[i] = _fit_one(
             model, data[i], n_sources, starts, max_iter)
     return FitOutcome(x=x, chi2=chi2, converged=conv, n_evaluations=nev,

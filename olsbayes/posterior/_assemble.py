@@ -78,7 +78,7 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     idata = to_inference_data(
         x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),
         accepted=moved.T, pointwise=logpost.pointwise(x), data=data, constants=constants,
-        attrs=attrs, prior_draws=prior.sample((1, PRIOR_DRAWS), gen_prior))
+        attrs=attrs, prior_draws=prior.sample((1, PRIOR_DRAWS), rng=gen_prior))
     return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,
                 names=tuple(prior.param_names), estimate=estimate, crlb_cov=crlb_cov,
                 start=centre, tau=tau, n_steps=n_steps, n_burn=n_burn, thin=thin,

@@ -133,7 +133,7 @@ def initial_walkers(model, data: np.ndarray, prior: ScenePrior, start: object,
     an ensemble is used as is.
     """
     if isinstance(start, str):
-        return prior.sample(n_walkers, gen_ball), None
+        return prior.sample(n_walkers, rng=gen_ball), None
     if isinstance(start, np.ndarray) and start.ndim == 2:
         return start.copy(), None
     if isinstance(start, np.ndarray):

@@ -54,7 +54,8 @@ class CountPrior(ABC):
         """P(K = k)."""
         return np.exp(self.log_prob(k))
 
-    def sample(self, size: int | tuple[int, ...] | None = None, rng: object = None) -> np.ndarray:
+    def sample(self, size: int | tuple[int, ...] | None = None, *,
+               rng: object = None) -> np.ndarray:
         """Draws of K, integer array of shape ``size``."""
         gen = as_rng(rng)
         return gen.choice(self.support, size=size, p=np.exp(self.log_pmf_table()))

@@ -261,7 +261,8 @@ class ScenePrior:
             out[..., idx] = prior.cdf(x[..., idx])
         return out
 
-    def sample(self, size: int | tuple[int, ...] | None = None, rng: object = None) -> np.ndarray:
+    def sample(self, size: int | tuple[int, ...] | None = None, *,
+               rng: object = None) -> np.ndarray:
         """Independent prior draws, shape ``size + (P,)``."""
         gen = as_rng(rng)
         shape = () if size is None else tuple(np.atleast_1d(size).astype(int))
@@ -281,7 +282,7 @@ class ScenePrior:
 def _direction_gain(model, prior_loc: tuple[Prior, ...]) -> float:
     """A low quantile over the location prior of the best sub-sensor gain per unit I."""
     gen = np.random.default_rng(20240531)  # fixed stream: a deterministic grid of directions
-    loc = np.column_stack([p.sample(4096, gen) for p in prior_loc])
+    loc = np.column_stack([p.sample(4096, rng=gen) for p in prior_loc])
     x = np.column_stack([loc, np.ones(len(loc))])
     best = model.response(x).max(axis=-1)
     return float(np.quantile(best, 0.01))

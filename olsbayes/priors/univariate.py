@@ -103,7 +103,7 @@ class Prior(ABC):
         return out if out.ndim else float(out)
 
     def sample(
-        self, size: int | tuple[int, ...] | None = None, rng: object = None
+        self, size: int | tuple[int, ...] | None = None, *, rng: object = None
     ) -> np.ndarray:
         """Draws of shape ``size`` via ``ppf`` of uniforms from ``rng``."""
         gen = as_rng(rng)

@@ -205,7 +205,7 @@ def ring_estimate(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
     model = Model(Ring(int(settings["n_sensors"])), float(settings["sigma"]))
     k = int(settings.get("n_sources", 1))
     truth = np.stack([ring_truth(model, settings, rng=r) for r in rngs])
-    data = np.stack([model.simulate(x, r) for x, r in zip(truth, rngs)])
+    data = np.stack([model.simulate(x, rng=r) for x, r in zip(truth, rngs)])
     k_hat = np.full(len(rngs), -1, np.int64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)  # recorded as flags instead

@@ -74,7 +74,7 @@ def sbc_posterior(settings: dict, *, rng: np.random.Generator) -> dict:
     k = int(settings.get("n_sources", 1))
     prior = _prior(model, settings, k)
     truth = prior.sample(rng=rng)
-    data = model.simulate(truth, rng)
+    data = model.simulate(truth, rng=rng)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)
@@ -103,7 +103,7 @@ def sbc_k(settings: dict, *, rng: np.random.Generator) -> dict:
     k_max = int(settings.get("k_max", 2))
     k_true = int(rng.integers(0, k_max + 1))
     truth = _prior(model, settings, k_true).sample(rng=rng) if k_true else np.zeros(0)
-    data = model.simulate(truth, rng) if k_true else model.sigma * rng.standard_normal(
+    data = model.simulate(truth, rng=rng) if k_true else model.sigma * rng.standard_normal(
         model.n_sensors)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)

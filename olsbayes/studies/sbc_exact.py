@@ -137,7 +137,7 @@ def sbc_exact(settings: dict, *, rng: np.random.Generator) -> dict:
     k = int(settings.get("n_sources", 1))
     prior = _prior(model, settings, k)
     truth = prior.sample(rng=rng)
-    data = model.simulate(truth, rng)
+    data = model.simulate(truth, rng=rng)
     draws, w = exact_ring_posterior(model, data, k, float(settings.get("i_max", 2.0)), rng=rng,
                                     n_grid=int(settings.get("n_grid", 512)))
     return {"cdf": weighted_cdf(draws, w, model.canonical(truth)), "ess": 1.0 / np.sum(w * w)}

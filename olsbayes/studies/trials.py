@@ -49,7 +49,7 @@ def noise_check(settings: dict, *, rng: np.random.Generator) -> dict:
     """
     model = _ring_model(settings)
     x = ring_scene(settings, rng=rng)
-    data = model.simulate(x, rng)
+    data = model.simulate(x, rng=rng)
     resid = data - model.response(x)
     z = resid / model.sigma
     return {"chi2": float(z @ z), "theta0": x[0], "moments": np.array([z.mean(), z.var()])}
