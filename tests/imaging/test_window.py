@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference.moments import batch_se
 
 import olsbayes as ob
 from olsbayes.imaging import ImageOptions, design_matrix, image
@@ -11,13 +12,6 @@ from olsbayes.imaging._window_kernel import _line, truncnorm_inv
 from olsbayes.imaging.sparse import gibbs_intensities
 from olsbayes.imaging.truncated import truncnorm_1d
 from olsbayes.imaging.window import combine, coordinate_moves, window_moves, window_sweep
-
-
-def _batch_se(draws: np.ndarray, n_batches: int = 20) -> np.ndarray:
-    """Monte Carlo standard error of the mean by batch means; draws (S, ...)."""
-    s = draws.shape[0] - draws.shape[0] % n_batches
-    means = draws[:s].reshape((n_batches, -1) + draws.shape[1:]).mean(axis=1)
-    return means.std(axis=0, ddof=1) / np.sqrt(n_batches)
 
 
 def _grid_moments(a, y, sigma, hi, n=90):
@@ -35,10 +29,10 @@ def _grid_moments(a, y, sigma, hi, n=90):
 def _check(samples, mean, var, n_se=5.0):
     x = np.moveaxis(samples, 1, 0)  # (S, C, K)
     k = x.shape[-1]
-    se = _batch_se(x.mean(axis=1))
+    se = batch_se(x.mean(axis=1))
     np.testing.assert_array_less(np.abs(x.reshape(-1, k).mean(axis=0) - mean), n_se * se)
     d2 = (x - mean) ** 2
-    se2 = _batch_se(d2.mean(axis=1))
+    se2 = batch_se(d2.mean(axis=1))
     np.testing.assert_array_less(np.abs(d2.reshape(-1, k).mean(axis=0) - var), n_se * se2)
 
 
@@ -144,5 +138,5 @@ def test_window_moves_mix_closely_spaced_sources():
     res = image(model, y, dirs, "bounded", rng=0, options=ImageOptions(sampler="gibbs", **kw))
     ref = image(model, y, dirs, "bounded", rng=1, options=ImageOptions(sampler="hmc", **kw))
     assert res.rhat < 1.1
-    se = np.hypot(*(_batch_se(np.moveaxis(r.samples, 1, 0).reshape(-1, 9)) for r in (res, ref)))
+    se = np.hypot(*(batch_se(np.moveaxis(r.samples, 1, 0).reshape(-1, 9)) for r in (res, ref)))
     np.testing.assert_array_less(np.abs(res.mean - ref.mean), 5 * se)

@@ -6,16 +6,11 @@ import itertools
 
 import numpy as np
 import pytest
+from reference.moments import batch_se
 
 import olsbayes as ob
 from olsbayes.imaging.binary import two_level_log_posterior
 from olsbayes.imaging.binary_gibbs import credible_sets, two_level_gibbs
-
-
-def _batch_se(draws: np.ndarray, n_batches: int = 20) -> np.ndarray:
-    s = draws.shape[0] - draws.shape[0] % n_batches
-    means = draws[:s].reshape((n_batches, -1) + draws.shape[1:]).mean(axis=1)
-    return means.std(axis=0, ddof=1) / np.sqrt(n_batches)
 
 
 def _problem(k=7, n=5, seed=2):
@@ -43,7 +38,7 @@ def test_block_gibbs_matches_enumeration(width, p):
     run = two_level_gibbs(a, y, sigma, i_max, np.zeros((8, k), dtype=bool), groups, 3000,
                           rng=np.random.default_rng(6), p_bright=p, n_burn=20)
     x = np.moveaxis(run.bits, 1, 0).astype(float)  # (S, C, K)
-    se = _batch_se(x.mean(axis=1))
+    se = batch_se(x.mean(axis=1))
     np.testing.assert_array_less(np.abs(run.p_bright - exact), 5 * se + 1e-12)
     assert run.best_log_posterior == pytest.approx(lp_max, abs=1e-9)  # 128 states: all visited
     lp = two_level_log_posterior(a, y, sigma, i_max * run.bits[2, -1], i_max, p)

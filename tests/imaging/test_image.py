@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference.moments import batch_se, box_moments_2d
 from scipy import integrate, stats
 
 import olsbayes as ob
@@ -22,13 +23,6 @@ from olsbayes.imaging import (
     split_rhat,
     truncnorm_1d,
 )
-
-
-def _batch_se(draws: np.ndarray, n_batches: int = 20) -> np.ndarray:
-    """Monte Carlo standard error of the mean by batch means; draws (S, ...)."""
-    s = draws.shape[0] - draws.shape[0] % n_batches
-    means = draws[:s].reshape((n_batches, -1) + draws.shape[1:]).mean(axis=1)
-    return means.std(axis=0, ddof=1) / np.sqrt(n_batches)
 
 
 @pytest.fixture
@@ -113,21 +107,6 @@ def test_truncnorm_1d_moments(m, s, lo, hi):
     assert x.std() == pytest.approx(ref.std(), rel=5 * np.sqrt(1 / x.size))
 
 
-def _box_moments_2d(q, b, lo, hi):
-    """Mean and covariance of exp(-x'Qx/2 + b'x) on a 2-D box by quadrature."""
-    def dens(x2, x1):
-        x = np.array([x1, x2])
-        return np.exp(-0.5 * x @ q @ x + b @ x)
-    opts = dict(epsabs=1e-12, epsrel=1e-10)
-    z = integrate.dblquad(dens, lo[0], hi[0], lo[1], hi[1], **opts)[0]
-    mom = {}
-    for key, f in {"1": lambda u, v: v, "2": lambda u, v: u, "11": lambda u, v: v * v,
-                   "22": lambda u, v: u * u, "12": lambda u, v: u * v}.items():
-        mom[key] = integrate.dblquad(lambda u, v: f(u, v) * dens(u, v), lo[0], hi[0],
-                                     lo[1], hi[1], **opts)[0] / z
-    mean = np.array([mom["1"], mom["2"]])
-    cov = np.array([[mom["11"], mom["12"]], [mom["12"], mom["22"]]]) - np.outer(mean, mean)
-    return mean, cov
 
 
 @pytest.mark.parametrize("singular", [False, True])
@@ -139,7 +118,7 @@ def test_exact_hmc_matches_2d_quadrature(singular):
         q = np.linalg.inv(np.array([[0.25, 0.2], [0.2, 0.25]]))
         b = q @ np.array([1.2, -0.3])
     lo, hi = np.zeros(2), np.ones(2)
-    mean, cov = _box_moments_2d(q, b, lo, hi)
+    mean, cov = box_moments_2d(q, b, lo, hi)
     run = sample_truncated_gaussian(
         q, b, lo, hi, np.full((8, 2), 0.5), 1500, rng=np.random.default_rng(7), n_burn=50,
         ridge=1.0 if singular else 0.0, centre=np.full(2, 0.5),
@@ -147,10 +126,10 @@ def test_exact_hmc_matches_2d_quadrature(singular):
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
     assert np.all((x >= 0) & (x <= 1))
     flat = x.reshape(-1, 2)
-    se = _batch_se(x.mean(axis=1))
+    se = batch_se(x.mean(axis=1))
     np.testing.assert_array_less(np.abs(flat.mean(axis=0) - mean), 5 * se)
     d2 = (flat - mean) ** 2
-    se2 = _batch_se(((x - mean) ** 2).mean(axis=1))
+    se2 = batch_se(((x - mean) ** 2).mean(axis=1))
     np.testing.assert_array_less(np.abs(d2.mean(axis=0) - np.diag(cov)), 5 * se2)
     if not singular:
         assert run.acceptance == 1.0  # exact dynamics, no correction needed
@@ -162,13 +141,13 @@ def test_gibbs_with_pair_moves_matches_2d_quadrature():
     a = np.array([[1.0, 0.95], [0.9, 1.0], [0.5, 0.45]])
     y, sigma = np.array([0.9, 0.85, 0.45]), 0.05
     q, b = a.T @ a / sigma**2, a.T @ y / sigma**2
-    mean, cov = _box_moments_2d(q, b, np.zeros(2), np.ones(2))
+    mean, cov = box_moments_2d(q, b, np.zeros(2), np.ones(2))
     run = gibbs_intensities(a, y, sigma, 1.0, np.full((8, 2), 0.5), 2000,
                             rng=np.random.default_rng(11), n_burn=20, pairs=np.array([[0, 1]]))
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
-    se = _batch_se(x.mean(axis=1))
+    se = batch_se(x.mean(axis=1))
     np.testing.assert_array_less(np.abs(x.reshape(-1, 2).mean(axis=0) - mean), 5 * se)
-    se2 = _batch_se(((x - mean) ** 2).mean(axis=1))
+    se2 = batch_se(((x - mean) ** 2).mean(axis=1))
     d2 = ((x - mean) ** 2).reshape(-1, 2).mean(axis=0)
     np.testing.assert_array_less(np.abs(d2 - np.diag(cov)), 5 * se2)
 
@@ -181,9 +160,9 @@ def test_exact_hmc_1d_matches_scipy_truncnorm():
     )
     ref = stats.truncnorm(-m / s, (1 - m) / s, m, s)
     x = np.moveaxis(run.samples[..., 0], 1, 0)  # (S, C)
-    se = _batch_se(x.mean(axis=1))
+    se = batch_se(x.mean(axis=1))
     assert abs(x.mean() - ref.mean()) < 5 * se
-    se2 = _batch_se(((x - ref.mean()) ** 2).mean(axis=1))
+    se2 = batch_se(((x - ref.mean()) ** 2).mean(axis=1))
     assert abs(np.mean((x - ref.mean()) ** 2) - ref.var()) < 5 * se2
 
 
@@ -216,9 +195,9 @@ def test_spike_and_slab_gibbs_matches_brute_force(pairs):
     ) / z
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
     on1 = (x[..., 0] > 0).mean(axis=1)
-    assert abs(on1.mean() - p_on1) < 5 * _batch_se(on1)
+    assert abs(on1.mean() - p_on1) < 5 * batch_se(on1)
     m1 = x[..., 0].mean(axis=1)
-    assert abs(m1.mean() - mean1) < 5 * _batch_se(m1)
+    assert abs(m1.mean() - mean1) < 5 * batch_se(m1)
 
 
 # -- summaries -------------------------------------------------------------------
@@ -267,16 +246,16 @@ def test_nonnegative_image_matches_2d_quadrature(ring_problem):
     model, dirs, a, y = ring_problem
     q, b = a.T @ a / model.sigma**2, a.T @ y / model.sigma**2
     hi = 3.5  # > 13 posterior sd above the unconstrained mean: the cut-off is immaterial
-    mean, cov = _box_moments_2d(q, b, np.zeros(2), np.full(2, hi))
+    mean, cov = box_moments_2d(q, b, np.zeros(2), np.full(2, hi))
     for sampler in ("gibbs", "hmc"):
         res = image(model, y, dirs, NonNegative(), rng=8, options=ImageOptions(
             sampler=sampler, n_samples=1500, n_chains=8, n_burn=50))
         assert res.prior == "nonnegative" and res.sampler == sampler
         assert np.all(res.samples >= 0) and np.all(np.isfinite(res.upper))
         x = np.moveaxis(res.samples, 1, 0)  # (S, C, 2)
-        se = _batch_se(x.mean(axis=1))
+        se = batch_se(x.mean(axis=1))
         np.testing.assert_array_less(np.abs(res.mean - mean), 5 * se)
-        se2 = _batch_se(((x - mean) ** 2).mean(axis=1))
+        se2 = batch_se(((x - mean) ** 2).mean(axis=1))
         d2 = ((x - mean) ** 2).reshape(-1, 2).mean(axis=0)
         np.testing.assert_array_less(np.abs(d2 - np.diag(cov)), 5 * se2)
 
