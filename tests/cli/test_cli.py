@@ -126,6 +126,7 @@ def test_bad_input_is_one_line_exit_2(argv, capsys):
     assert_one_line_error(code, err)
 
 
+@pytest.mark.slow
 def test_real_subprocess_demo(tmp_path):
     env = dict(os.environ, MPLBACKEND="Agg")
     exe = Path(sys.executable).with_name("olsbayes")
@@ -166,6 +167,7 @@ def test_fit_batch_file_and_missing_k(tmp_path, capsys):
     assert "--n-sources" in err
 
 
+@pytest.mark.slow
 def test_fit_posterior_report(tmp_path, capsys):
     """--report runs emcee from the ML point and writes the report; a short run warns."""
     rep = tmp_path / "rep"

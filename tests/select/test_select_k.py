@@ -52,6 +52,7 @@ def test_laplace_selects_the_true_number_of_sources(k):
             res[0].log_likelihood)
 
 
+@pytest.mark.slow
 def test_laplace_and_nested_agree_on_a_well_separated_two_source_scene():
     data = _data(2, 0)
     prior = default_priors(MODEL, 2, i_max=2.0)

@@ -67,6 +67,7 @@ def reenters(settings, rng):
     return {"x": float(ds.x.sum())}
 
 
+@pytest.mark.slow
 def test_same_numbers_on_every_executor_worker_count_and_chunking():
     from distributed import Client, LocalCluster
 
@@ -256,6 +257,7 @@ def _session_members(sid: int) -> list[int]:
     return pids
 
 
+@pytest.mark.slow
 def test_study_killed_with_sigkill_resumes_without_loss_or_duplicates(tmp_path):
     script = tmp_path / "study_script.py"
     script.write_text(SCRIPT)
