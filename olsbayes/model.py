@@ -101,16 +101,18 @@ class Model(Frozen):
         """The same array and noise with another sensitivity law."""
         return Model(self.array, self.sigma, sensitivity)
 
-    def memo(self, key: object, make: Callable[[], _T]) -> _T:
+    def memo(self, key: object, make: Callable[[], _T] | None = None) -> _T | None:
         """``make()``, computed once per model and ``key`` (a hashable label).
 
         Holds constants derived from this model alone (grids, atoms, kernel
         arguments).  The memo belongs to the instance: copies and unpickled models
-        start with an empty one.
+        start with an empty one.  Without ``make``: the value held, or None.
         """
         try:
             return self._memo[key]
         except KeyError:
+            if make is None:
+                return None
             value = self._memo[key] = make()
             return value
 

@@ -81,7 +81,8 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 def cached_default_grid(model: Model) -> np.ndarray:
     """:func:`default_grid` of a model at the default density, cached on the model
-    (read-only)."""
+    (read-only).
+    """
     return model.memo("default_grid", lambda: _readonly(default_grid(model)))
 
 
@@ -109,8 +110,11 @@ def atoms(model: Model, grid: np.ndarray) -> np.ndarray:
     """Unit-intensity responses of the grid locations, shape (M, N), read-only.
 
     Cached on the model (:meth:`~olsbayes.Model.memo`) per grid content, since a
-    model's response never changes.
+    model's response never changes; the model's own default grid is found by identity.
     """
+    if grid is model.memo("default_grid"):
+        return model.memo("default_atoms", lambda: _readonly(
+            model.response(np.column_stack([grid, np.ones(grid.shape[0])]))))
     flat = np.ascontiguousarray(grid, dtype=float)
     key = (flat.shape, hashlib.sha1(flat.view(np.uint8)).hexdigest())
     per_model = model.memo("atoms", dict)

@@ -28,7 +28,8 @@ __all__ = ["fit_ml", "METHODS"]
 @dataclass(frozen=True)
 class _Method:
     """One estimator: the type of its options (None: it takes none) and its runner
-    ``run(model, data (T, N), K, grid, options, rng, scales (T,)) -> FitOutcome``."""
+    ``run(model, data (T, N), K, grid, options, rng, scales (T,)) -> FitOutcome``.
+    """
 
     options: type | None
     run: Callable[..., FitOutcome]
@@ -40,7 +41,8 @@ def _run_fast(model, s, k, grid, options, gen, scale) -> FitOutcome:
 
 def _run_multistart(model, s, k, grid, options, gen, scale) -> FitOutcome:
     """Data divided by ``scale`` (T,): sigma scaled alike per data vector (the
-    objective is in units of sigma), in order (one rng stream)."""
+    objective is in units of sigma), in order (one rng stream).
+    """
     if np.all(scale == 1.0):
         return fit_multistart(model, s, k, grid, options, rng=gen)
     parts = [fit_multistart(scaled_model(model, float(c)), s[i : i + 1], k, grid, options,
@@ -56,7 +58,8 @@ def _run_exact(model, s, k, grid, options, gen, scale) -> FitOutcome:
     """Data divided by ``scale`` (T,), converged by construction, evaluations =
     configurations.  Data vectors sharing a scale run in one batch with sigma scaled
     alike: the enumeration ranks its candidates by log-likelihood, whose chi^2 term
-    would vanish in rounding against -N log sigma otherwise."""
+    would vanish in rounding against -N log sigma otherwise.
+    """
     t, p = s.shape[0], model.n_params(k)
     x, nconf = np.empty((t, p)), np.empty(t, dtype=np.int64)
     for c in np.unique(scale):
@@ -73,6 +76,9 @@ _METHODS = {
     "exact": _Method(None, _run_exact),
 }
 
+#: The default options of each method (validated once; the records are immutable).
+_DEFAULT_OPTIONS = {FastOptions: FastOptions(), MultistartOptions: MultistartOptions()}
+
 #: Accepted values of ``method``.
 METHODS = tuple(_METHODS)
 
@@ -87,7 +93,7 @@ def _check_options(model: Model, k: int, method: object, options: object) -> obj
             raise InputError(f"method={method!r} takes no options; got {options!r}")
         check_exact(model, k)
         return None
-    options = kind() if options is None else options
+    options = _DEFAULT_OPTIONS[kind] if options is None else options
     if not isinstance(options, kind):
         raise InputError(f"options for method={method!r} must be a {kind.__name__}; got "
                          f"{type(options).__name__}")
@@ -169,7 +175,8 @@ def fit_ml(
 
 def _statistics(model: Model, x: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Log-likelihood (T,) and inverse Fisher matrices (T, P, P) at the estimates x (T, P)
-    of data s (T, N), by the rule of :func:`olsbayes.bounds.bound_covariance`."""
+    of data s (T, N), by the rule of :func:`olsbayes.bounds.bound_covariance`.
+    """
     from ._numba import fit, lm  # numba is imported on first use, not with the package
 
     if not lm.supports(model):

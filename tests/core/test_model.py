@@ -284,3 +284,15 @@ def test_changed_copies_and_copies_never_share_a_cache():
         assert other._memo == {} and other.sigma == model.sigma
     with pytest.raises(ob.InputError, match="sigma"):
         model.with_sigma(-1.0)
+
+
+def test_memo_lookup_without_make_computes_nothing():
+    from olsbayes.ml.atoms import atoms, cached_default_grid
+
+    model = ob.Model(ob.Ring(8), 0.1)
+    assert model.memo("default_grid") is None
+    atoms(model, np.array([[0.1], [0.2]]))  # a user grid first: the default is not stored
+    assert model.memo("default_grid") is None
+    grid = cached_default_grid(model)
+    assert model.memo("default_grid") is grid and grid.shape[0] >= 128
+    assert atoms(model, grid) is atoms(model, grid)

@@ -134,12 +134,18 @@ class FastOptions:
     def resolve(self, model, k: int) -> FastOptions:
         """These options with every None replaced by its default for K sources.
 
+        The result is kept in the model's memo (both are immutable), so repeated fits
+        resolve once.
+
         Raises
         ------
         InputError
             ``escalate=True`` for a model the exact enumeration does not cover, or
             ``kink_hops=True`` for one without sub-sensor horizons in its likelihood.
         """
+        return model.memo(("fast_options", self, k), lambda: self._resolve(model, k))
+
+    def _resolve(self, model, k: int) -> FastOptions:
         ring_cosine = isinstance(model.array, Ring) and is_clipped_cosine(model.sensitivity)
         if self.escalate and not (ring_cosine and k <= 4):
             raise InputError("escalate=True needs a Ring model with the clipped cosine and "
