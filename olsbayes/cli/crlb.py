@@ -23,6 +23,7 @@ __all__ = ["register", "run", "crlb_payload", "crlb_text"]
 
 
 def register(subparsers: Any) -> None:
+    """Add the ``crlb`` subcommand and its options to ``subparsers``."""
     p = add_command(subparsers, "crlb", help="exact CRLB of a scene", description=__doc__)
     add_config_args(p)
     add_json_arg(p)
@@ -108,6 +109,10 @@ def crlb_text(model: Model, scene: Scene, res: CRLBResult) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the exact CRLB of the configured scene (text, or JSON with --json).
+
+    Returns the exit status 0.
+    """
     cfg = load_cli_config(args, required=("sensor", "scene"))
     model = model_from_config(cfg)
     scene = scene_from_config(cfg, model)

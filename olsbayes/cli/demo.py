@@ -40,6 +40,7 @@ __all__ = ["register", "run"]
 
 
 def register(subparsers: Any) -> None:
+    """Add the ``demo`` subcommand and its options to ``subparsers``."""
     p = add_command(subparsers, "demo", help="simulate, fit and bound the Fig. 3 scene",
                     description=__doc__)
     p.add_argument("--out", type=Path, default=Path("olsbayes-demo"), metavar="DIR",
@@ -75,6 +76,13 @@ def _figures(out: Path, model: Any, data: Any, truth: Any, estimate: Any) -> lis
 
 
 def run(args: argparse.Namespace) -> int:
+    """Simulate, fit and bound the Fig. 3 scene; sample its posterior unless --no-posterior.
+
+    Prints the results (text, or JSON with --json); unless --no-figures, writes the
+    response plot to --out and the posterior report to --out/posterior/.  With
+    --print-config, prints the demo's TOML configuration instead.  Returns the exit
+    status 0.
+    """
     from ..ml import fit_ml
 
     if args.print_config:

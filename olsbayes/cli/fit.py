@@ -44,6 +44,7 @@ __all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs", "pos
 
 
 def register(subparsers: Any) -> None:
+    """Add the ``fit`` subcommand and its options to ``subparsers``."""
     p = add_command(subparsers, "fit", help="maximum-likelihood fit of K sources",
                     description=__doc__)
     add_config_args(p)
@@ -205,6 +206,11 @@ def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None,
 
 
 def run(args: argparse.Namespace) -> int:
+    """Fit K sources to the readings and print the estimate with its CRLB.
+
+    With --posterior (or --report) also samples the posterior, seeded at the ML
+    point.  Prints text, or JSON with --json; returns the exit status 0.
+    """
     from ..ml import fit_ml
 
     model, truth, data, k = load_fit_inputs(args)

@@ -85,6 +85,7 @@ register_section(Section(
 
 
 def register(subparsers: Any) -> None:
+    """Add the ``image`` subcommand and its options to ``subparsers``."""
     p = add_command(subparsers, "image", help="intensities at known directions (imaging)",
                     description=__doc__)
     add_config_args(p)
@@ -165,6 +166,11 @@ def _options(sec: dict[str, Any], prior: ImagingPrior, truth: np.ndarray | None,
 
 
 def run(args: argparse.Namespace) -> int:
+    """Image the known directions: print the intensity posterior per direction.
+
+    Prints text, or JSON with --json, and with --figure writes the sky-map panels;
+    returns the exit status 0.
+    """
     model, data, dirs, truth, sec = _inputs(args)
     prior = _prior(sec)
     options = _options(sec, prior, truth, dirs.shape[0])

@@ -43,6 +43,7 @@ register_section(Section(
 
 
 def register(subparsers: Any) -> None:
+    """Add the ``select`` subcommand and its options to ``subparsers``."""
     p = add_command(subparsers, "select", help="choose the number of sources K (evidence)",
                     description=__doc__)
     add_config_args(p)
@@ -77,6 +78,10 @@ def _options(args: argparse.Namespace, cfg: Any) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the evidence per K and p(K | data) for every row of readings.
+
+    Prints text, or JSON with --json; returns the exit status 0.
+    """
     cfg = load_cli_config(args, sections=("sensor", "scene", "data", "select"),
                           required=("sensor",))
     model = model_from_config(cfg)

@@ -37,6 +37,7 @@ DEFAULT_SEED = 20260123
 
 
 def register(subparsers: Any) -> None:
+    """Add the ``simulate`` subcommand and its options to ``subparsers``."""
     p = add_command(subparsers, "simulate", help="simulate noisy readings of a scene",
                     description=__doc__)
     add_config_args(p)
@@ -57,6 +58,10 @@ def readings_text(readings: np.ndarray, header: str = "") -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Simulate noisy readings of the configured scene; print them or write them to --out.
+
+    Prints text, or JSON with --json; returns the exit status 0.
+    """
     cfg = load_cli_config(args, required=("sensor", "scene"))
     model = model_from_config(cfg)
     scene = scene_from_config(cfg, model)

@@ -27,7 +27,7 @@ and settings are refused before any trial runs.
   [fixed]
   n_sensors = 16
 
-Examples:
+Example:
   olsbayes study sweep.toml
   olsbayes study sweep.toml --resume
   olsbayes study sweep.toml --executor dask --scheduler tcp://10.0.0.5:8786
@@ -87,6 +87,7 @@ def estimator_help() -> str:
 
 
 def register(subparsers: Any) -> None:
+    """Add the ``study`` subcommand and its options to ``subparsers``."""
     p = add_command(subparsers, "study", help="run a Monte Carlo study (local pool or Dask)",
                     description=f"{__doc__}\n{estimator_help()}")
     p.add_argument("config", metavar="CONFIG", help="TOML file with [study], [grid], [fixed]")
@@ -159,6 +160,11 @@ def _summary(ds) -> tuple[list[str], list[list[Any]]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the study of the TOML file, write its result and print the mean per cell.
+
+    A study error is reported as a :class:`~olsbayes.errors.ConfigError` naming the
+    file.  Prints text, or JSON with --json; returns the exit status 0.
+    """
     overrides = dict(_parse_override(s) for s in args.overrides)
     cfg = load_study_config(args.config, overrides)
     s = cfg["study"]
