@@ -80,8 +80,9 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 
 def cached_default_grid(model: Model) -> np.ndarray:
-    """:func:`default_grid` of a model at the default density, cached on the model
-    (read-only).
+    """:func:`default_grid` of a model at the default density, cached on the model.
+
+    The cached grid is read-only.
     """
     return model.memo("default_grid", lambda: _readonly(default_grid(model)))
 

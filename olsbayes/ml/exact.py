@@ -132,8 +132,10 @@ def crossing_angles(ring: Ring) -> np.ndarray:
 
 
 def _scan_design(model: Model) -> tuple[np.ndarray, ...]:
-    """:func:`_design` (c, cols), the states' Gram matrix cols' cols, the crossing
-    directions (M, 2) and the arc widths (M,) of a model, cached on the model.
+    """The scan's arrays of a model, cached on the model.
+
+    :func:`_design` (c, cols), the states' Gram matrix cols' cols, the crossing
+    directions (M, 2) and the arc widths (M,).
 
     Private and never written: writeable arrays, so that the compiled scan sees one
     array type whoever calls it.
@@ -163,8 +165,10 @@ def _design(model: Model) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_exact(model: Model, k: int) -> None:
-    """InputError unless the enumeration covers the model: a ring with the clipped
-    cosine and 1 <= K <= :data:`MAX_SOURCES`."""
+    """Raise InputError unless the enumeration covers the model.
+
+    Covered: a ring with the clipped cosine and 1 <= K <= :data:`MAX_SOURCES`.
+    """
     if not isinstance(model.array, Ring):
         raise InputError(
             "method='exact' needs a Ring model (the enumeration of a ring's horizon "
@@ -184,8 +188,10 @@ def _widths(c: np.ndarray) -> np.ndarray:
 def _best_params(model: Model, c: np.ndarray, width: np.ndarray, cols: np.ndarray,
                  s: np.ndarray, cstate: np.ndarray,
                  count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per data vector, the canonical parameters (T, 2K) of its candidate with the
-    largest direct log L, and that log L (T,); no source (all zeros) wins ties.
+    """Per data vector, its candidate with the largest direct log L, and that log L.
+
+    Returns the canonical parameters (T, 2K) and the log L (T,); no source (all zeros)
+    wins ties.
 
     ``cstate`` (T, C, K): candidate configurations (arc j -> j, pin j -> M + j,
     absent -> -1), the first ``count`` (T,) of each row.  Each LS problem is
@@ -216,8 +222,9 @@ def _best_params(model: Model, c: np.ndarray, width: np.ndarray, cols: np.ndarra
 
 def _group_params(c: np.ndarray, width: np.ndarray, cols: np.ndarray, s: np.ndarray,
                   arcs: np.ndarray, pins: np.ndarray, k: int) -> np.ndarray:
-    """Flat parameters (n, 2K) of n configurations of a arcs (n, a) and q pins (n, q)
-    fitted to s (n, N); absent sources [0, 0].
+    """Flat parameters (n, 2K) of n configurations of arcs and pins fitted to s (n, N).
+
+    a arcs (n, a) and q pins (n, q); absent sources [0, 0].
 
     An arc phasor within the feasibility slack outside its arc goes to the
     nearest end.

@@ -27,7 +27,9 @@ __all__ = ["fit_ml", "METHODS"]
 
 @dataclass(frozen=True)
 class _Method:
-    """One estimator: the type of its options (None: it takes none) and its runner
+    """One estimator: the type of its options and its runner.
+
+    ``options`` is None when it takes none; the runner is
     ``run(model, data (T, N), K, grid, options, rng, scales (T,)) -> FitOutcome``.
     """
 
@@ -40,8 +42,9 @@ def _run_fast(model, s, k, grid, options, gen, scale) -> FitOutcome:
 
 
 def _run_multistart(model, s, k, grid, options, gen, scale) -> FitOutcome:
-    """Data divided by ``scale`` (T,): sigma scaled alike per data vector (the
-    objective is in units of sigma), in order (one rng stream).
+    """Multistart fit of data divided by ``scale`` (T,), sigma scaled alike per data vector.
+
+    The objective is in units of sigma; the data vectors run in order (one rng stream).
     """
     if np.all(scale == 1.0):
         return fit_multistart(model, s, k, grid, options, rng=gen)
@@ -55,10 +58,11 @@ def _run_multistart(model, s, k, grid, options, gen, scale) -> FitOutcome:
 
 
 def _run_exact(model, s, k, grid, options, gen, scale) -> FitOutcome:
-    """Data divided by ``scale`` (T,), converged by construction, evaluations =
-    configurations.  Data vectors sharing a scale run in one batch with sigma scaled
-    alike: the enumeration ranks its candidates by log-likelihood, whose chi^2 term
-    would vanish in rounding against -N log sigma otherwise.
+    """Exact enumeration of data divided by ``scale`` (T,), converged by construction.
+
+    Evaluations = configurations.  Data vectors sharing a scale run in one batch with
+    sigma scaled alike: the enumeration ranks its candidates by log-likelihood, whose
+    chi^2 term would vanish in rounding against -N log sigma otherwise.
     """
     t, p = s.shape[0], model.n_params(k)
     x, nconf = np.empty((t, p)), np.empty(t, dtype=np.int64)
@@ -174,8 +178,9 @@ def fit_ml(
 
 
 def _statistics(model: Model, x: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Log-likelihood (T,) and inverse Fisher matrices (T, P, P) at the estimates x (T, P)
-    of data s (T, N), by the rule of :func:`olsbayes.bounds.bound_covariance`.
+    """Log-likelihood (T,) and inverse Fisher matrices (T, P, P) at the estimates x (T, P).
+
+    Of data s (T, N); the inverses by the rule of :func:`olsbayes.bounds.bound_covariance`.
     """
     from ._numba import fit, lm  # numba is imported on first use, not with the package
 

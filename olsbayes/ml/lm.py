@@ -270,8 +270,10 @@ def refine_batch_numpy(
 
 
 def _within(x: np.ndarray, known: np.ndarray, count: np.ndarray, tol: float) -> np.ndarray:
-    """Rows of x (n, P) within tol (max norm) of one of the first count[i] rows of
-    known[i] (n, J, P): bool (n,)."""
+    """Rows of x (n, P) within tol (max norm) of a known row: bool (n,).
+
+    Row i is compared with the first count[i] rows of known[i] (n, J, P).
+    """
     valid = np.arange(known.shape[1]) < count[:, None]
     close = np.all(np.abs(x[:, None, :] - known) <= tol, axis=-1)
     return np.any(valid & close, axis=-1)
@@ -279,8 +281,11 @@ def _within(x: np.ndarray, known: np.ndarray, count: np.ndarray, tol: float) -> 
 
 def _lm_numpy(model: Model, data: np.ndarray, x0: np.ndarray, max_iter: int, ftol: float,
               frozen: np.ndarray | None, stop: tuple | None) -> FitOutcome:
-    """Lock-step LM of :func:`refine_batch_numpy`; ``stop``: (known (T, J, P), count (T,),
-    tol) -- a run whose accepted iterate is within tol of a known row stops there."""
+    """Lock-step LM of :func:`refine_batch_numpy`, with an optional stop at known rows.
+
+    ``stop``: (known (T, J, P), count (T,), tol) -- a run whose accepted iterate is
+    within tol of a known row stops there.
+    """
     x = project(model, x0)
     t = x.shape[0]
     chi2 = np.zeros(t)

@@ -92,8 +92,11 @@ def _objective(model: Model, s: np.ndarray):
 def _fit_one(
     model: Model, s: np.ndarray, k: int, starts: np.ndarray, max_iter: int
 ) -> tuple[np.ndarray, float, bool, int, np.ndarray, np.ndarray]:
-    """Best of the starts: x, chi^2, converged, evaluations, and every start's optimum
-    (x (M, P), chi^2 (M,), inf where the start did not converge)."""
+    """Best of the starts, and every start's optimum.
+
+    Returns x, chi^2, converged, evaluations, and every start's optimum (x (M, P),
+    chi^2 (M,), inf where the start did not converge).
+    """
     fun, bounds = _objective(model, s), _bounds(model, k)
     best, nev = None, 0
     xs, chi2s = np.empty((len(starts), model.n_params(k))), np.empty(len(starts))

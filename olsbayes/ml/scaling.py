@@ -28,8 +28,10 @@ BAND = (2.0**-10, 2.0**10)
 
 
 def reading_scales(data: np.ndarray) -> np.ndarray:
-    """Power-of-two factor per data vector (T, N) -> (T,): 1 inside :data:`BAND`
-    (and for an all-zero vector), else 2^round(log2 max |reading|)."""
+    """Power-of-two factor per data vector: (T, N) -> (T,).
+
+    1 inside :data:`BAND` (and for an all-zero vector), else 2^round(log2 max |reading|).
+    """
     top = np.max(np.abs(data), axis=-1)
     inside = (top == 0.0) | ((top >= BAND[0]) & (top <= BAND[1]))
     with np.errstate(divide="ignore"):
@@ -45,8 +47,10 @@ def scaled_model(model: Model, scale: float) -> Model:
 
 
 def rescale(model: Model, out: FitOutcome, scale: np.ndarray) -> FitOutcome:
-    """An outcome of data divided by ``scale`` (T,) in the original units: intensities
-    times the scale, residual sums of squares times its square."""
+    """An outcome of data divided by ``scale`` (T,), in the original units.
+
+    Intensities times the scale, residual sums of squares times its square.
+    """
     d1 = model.n_loc + 1
 
     def up(x: np.ndarray) -> np.ndarray:

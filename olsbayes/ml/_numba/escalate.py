@@ -12,8 +12,11 @@ __all__ = ["close_or_weak"]
 
 @numba.njit(cache=True)
 def close_or_weak(x, close, weak):  # pragma: no cover - compiled
-    """Rows of x (T, 2K) with two angles closer than ``close`` rad or an intensity
-    <= ``weak`` times the largest: bool (T,)."""
+    """Rows of x (T, 2K) with two close angles or a weak intensity: bool (T,).
+
+    Close: two angles closer than ``close`` rad; weak: an intensity <= ``weak`` times
+    the largest.
+    """
     t, k = x.shape[0], x.shape[1] // 2
     out = np.zeros(t, dtype=np.bool_)
     for i in range(t):

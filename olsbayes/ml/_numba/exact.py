@@ -20,8 +20,10 @@ __all__ = ["scan"]
 
 @numba.njit(cache=True)
 def _next_combination(c, n):  # pragma: no cover - compiled
-    """Advance the sorted r-subset c of range(n) in place; returns the first position
-    that changed, -1 after the last subset."""
+    """Advance the sorted r-subset c of range(n) in place.
+
+    Returns the first position that changed, -1 after the last subset.
+    """
     r = c.size
     i = r - 1
     while i >= 0 and c[i] == n - r + i:
@@ -36,8 +38,9 @@ def _next_combination(c, n):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _factor_rows(gram, idx, r0, p, rtol, low, ud, inv):  # pragma: no cover - compiled
-    """Rows r0..p-1 of the LDL^T of gram[idx, idx] (p x p); the leading r0 rows are
-    those of the previous configuration, which shares idx[:r0].
+    """Rows r0..p-1 of the LDL^T of gram[idx, idx] (p x p).
+
+    The leading r0 rows are those of the previous configuration, which shares idx[:r0].
 
     low: unit lower factor L, ud = L D (below the diagonal), inv = 1 / D.  Returns
     the first rank-deficient row (pivot <= rtol times its diagonal entry), or p.
@@ -60,9 +63,12 @@ def _factor_rows(gram, idx, r0, p, rtol, low, ud, inv):  # pragma: no cover - co
 
 @numba.njit(cache=True)
 def _forward(b, t, idx, r0, p, low, inv, z, gp):  # pragma: no cover - compiled
-    """Gain b^T G^-1 b of data vector t, b = b[t, idx]: forward substitution L z = b
-    from row r0 on; z[t, :r0] and the prefix gains gp[t, :r0 + 1] (gp[t, 0] = 0) are
-    those of the previous configuration, which shares its leading rows."""
+    """Gain b^T G^-1 b of data vector t, b = b[t, idx], by forward substitution L z = b.
+
+    The substitution runs from row r0 on; z[t, :r0] and the prefix gains
+    gp[t, :r0 + 1] (gp[t, 0] = 0) are those of the previous configuration, which
+    shares its leading rows.
+    """
     for i in range(r0, p):
         zi = b[t, idx[i]]
         for k in range(i):

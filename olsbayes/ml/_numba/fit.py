@@ -118,9 +118,11 @@ def _cov_all(fisher, rtol, out):  # pragma: no cover - compiled
 
 
 def covariances(fisher: np.ndarray, rtol: float) -> np.ndarray:
-    """Inverse Fisher matrices (T, P, P) by the rule of
-    :func:`olsbayes.bounds.bound_covariance` (finite input): the kernel works on the
-    equilibrated matrices (:func:`olsbayes.bounds.equilibrate`)."""
+    """Inverse Fisher matrices (T, P, P) by the rule of :func:`olsbayes.bounds.bound_covariance`.
+
+    For finite input.  The kernel works on the equilibrated matrices
+    (:func:`olsbayes.bounds.equilibrate`).
+    """
     f, d = equilibrate(np.asarray(fisher, dtype=np.float64))
     f = np.require(f, np.float64, ["C", "W"])
     out = np.empty(f.shape)

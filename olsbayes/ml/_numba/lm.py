@@ -159,8 +159,11 @@ def _kink_alpha(nrm, x, step, jt, jt2, fk):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _cell(nrm, x, vis):  # pragma: no cover - compiled
-    """vis[a, q]: sub-sensor q sees source a of the angle fit x; False if a source is
-    within 1e-9 of a sub-sensor's horizon (the cell is then ambiguous)."""
+    """Fill vis[a, q]: whether sub-sensor q sees source a of the angle fit x.
+
+    Returns False if a source is within 1e-9 of a sub-sensor's horizon (the cell is
+    then ambiguous), else True.
+    """
     for a in range(x.size // 2):
         u0, u1 = math.cos(x[2 * a]), math.sin(x[2 * a])
         for q in range(nrm.shape[1]):
@@ -173,8 +176,9 @@ def _cell(nrm, x, vis):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _known_cell(jt, known_vis, known_ok, n_known):  # pragma: no cover - compiled
-    """Index of a known optimum whose linear cell holds the iterate whose Jacobian is jt
-    (ring, clipped cosine: its intensity rows are max(cos, 0)), else -1.
+    """Index of a known optimum whose linear cell holds the iterate of Jacobian jt, else -1.
+
+    Ring, clipped cosine: the intensity rows of jt are max(cos, 0).
 
     Inside a cell the readings are linear in the phasors (I cos a, I sin a) and the
     cell is a product of convex cones, so chi^2 there is convex: a converged

@@ -18,8 +18,10 @@ __all__ = ["angle_rival_gap"]
 
 @numba.njit(cache=True)
 def _distinct(cand, best, std, perms, n_std):  # pragma: no cover - compiled
-    """Whether the best-matched source angles of ``cand`` differ from ``best``'s by
-    more than n_std std somewhere (flat [angle, I] layout)."""
+    """Whether the best-matched source angles of ``cand`` and ``best`` differ somewhere.
+
+    True when a matched pair differs by more than n_std std (flat [angle, I] layout).
+    """
     k = perms.shape[1]
     cost_min, arg = np.inf, 0
     for p in range(perms.shape[0]):

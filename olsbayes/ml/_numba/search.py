@@ -131,8 +131,10 @@ def _given_others(g, gram, gnorm2, gs, s, idx, j, w, out):  # pragma: no cover -
 
 @numba.njit(cache=True)
 def _pursue_and_alternate(g, gram, gnorm2, gs, s, k, max_sweeps, w, sc):  # pragma: no cover
-    """Pursuit then alternating projection; sc (K, M) ends as each source's scores
-    given the others at the returned atoms (search._pursuit / _alternate)."""
+    """Pursuit then alternating projection (search._pursuit / _alternate).
+
+    sc (K, M) ends as each source's scores given the others at the returned atoms.
+    """
     idx = np.zeros(k, np.int64)
     for step in range(k):
         _given_others(g, gram, gnorm2, gs, s, idx[:step], -1, w, sc[0])

@@ -84,10 +84,13 @@ def _block_best_any(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, bes
 @numba.njit(cache=True)
 def _block_best(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, use_pen, best,
                 arg):  # pragma: no cover - compiled
-    """Best feasible tuple of every lane of a block: best (B,) its score (-inf: none),
-    arg (B,) its number (0 if none), both of the plan's float type.  pen_t (Mc, B):
-    0, or with ``use_pen`` -inf for an atom blocked for the lane (the tuples
-    holding it are skipped; adding 0 is exact); K = 4 without ``use_pen`` skips it."""
+    """Best feasible tuple of every lane of a block.
+
+    best (B,): its score (-inf: none); arg (B,): its number (0 if none); both of the
+    plan's float type.  pen_t (Mc, B): 0, or with ``use_pen`` -inf for an atom
+    blocked for the lane (the tuples holding it are skipped; adding 0 is exact);
+    K = 4 without ``use_pen`` skips it.
+    """
     km = prefixes.shape[0]
     if km == 1:
         _block_best2(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best, arg)
@@ -167,9 +170,11 @@ def _block_best3(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, pen_t, best,
 @numba.njit(cache=True)
 def _block_best4(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, best,
                  arg):  # pragma: no cover - compiled
-    """:func:`_block_best` for K = 4 without blocked atoms, unrolled; the lanes' work
-    arrays are allocated here, so the compiler knows they do not alias and
-    vectorises over lanes."""
+    """:func:`_block_best` for K = 4 without blocked atoms, unrolled.
+
+    The lanes' work arrays are allocated here, so the compiler knows they do not
+    alias and vectorises over lanes.
+    """
     nb, dt = best.size, best.dtype
     b0, b1, b2 = np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt)
     f0, f1, f2, sp = np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt), np.empty(nb, dt)
@@ -206,9 +211,12 @@ def _block_best4(corr_t, prefixes, prefix_inv, ext_ptr, last, ext, best,
 @numba.njit(cache=True)
 def _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext,
                   out):  # pragma: no cover - compiled
-    """All tuple scores of one trial (-inf: infeasible or holding a blocked atom, pen
-    (Mc,) 0 or -inf), vectorised over the tuples of each prefix: one lane of the
-    blocked kernels gains nothing from vectors.  Same arithmetic as them."""
+    """All tuple scores of one trial, vectorised over the tuples of each prefix.
+
+    -inf: infeasible or holding a blocked atom (pen (Mc,) 0 or -inf).  One lane of
+    the blocked kernels gains nothing from vectors.  Same arithmetic as the blocked
+    kernels.
+    """
     km = prefixes.shape[0]
     b, f = np.empty(km, out.dtype), np.empty(km, out.dtype)
     f[0] = 0.0
@@ -252,8 +260,10 @@ def _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext,
 
 @numba.njit(cache=True)
 def _first_max(scores, columns, blocked, masked):  # pragma: no cover - compiled
-    """(index, value) of the first maximum of scores (0, -inf if all are -inf);
-    ``masked``: tuples with a ``blocked`` atom are skipped."""
+    """(index, value) of the first maximum of scores (0, -inf if all are -inf).
+
+    ``masked``: tuples with a ``blocked`` atom are skipped.
+    """
     best, arg = -np.inf, 0
     for c in range(scores.size):
         if scores[c] > best:
@@ -306,8 +316,9 @@ def _write(subset, columns, arg, out_row):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, data, out,
                  col, col2):  # pragma: no cover - compiled
-    """Best feasible K-tuple (K >= 2) of one coarse plan per trial into out[:, col],
-    and with col2 >= 0 the best one outside its atoms' basins (``near`` (Mc, Mc))
+    """Best feasible K-tuple (K >= 2) of one coarse plan per trial into out[:, col].
+
+    With col2 >= 0, also the best one outside its atoms' basins (``near`` (Mc, Mc))
     into out[:, col2] (the first one again if there is none).
 
     Blocks of up to :data:`TUPLE_BLOCK` trials, vectorised over the trials of a block;

@@ -58,9 +58,12 @@ _GRAM_ATOMS = 1024
 
 
 def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Read-only views of the atoms, their Gram matrix (empty when M > :data:`_GRAM_ATOMS`),
-    squared norms, the unit atoms and the CSR neighbour lists of the unit atoms
-    (empty when M^2 N > :data:`_NEIGHBOUR_WORK`)."""
+    """Read-only views of the atoms and of the arrays derived from them.
+
+    The atoms, their Gram matrix (empty when M > :data:`_GRAM_ATOMS`), squared norms,
+    the unit atoms and the CSR neighbour lists of the unit atoms (empty when
+    M^2 N > :data:`_NEIGHBOUR_WORK`).
+    """
     from .._numba import search as sk
 
     def make(a: np.ndarray) -> tuple[np.ndarray, ...]:
