@@ -44,8 +44,10 @@ def _point_estimate(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
 def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
              centre: np.ndarray | None, options: SamplerOptions,
              gen_prior: np.random.Generator) -> dict:
-    """The fields of a :class:`~olsbayes.posterior.PosteriorResult` (all but
-    ``converged``, ``elapsed``, ``n_evaluations``) from a finished sampler."""
+    """The fields of a :class:`~olsbayes.posterior.PosteriorResult` from a finished sampler.
+
+    All fields but ``converged``, ``elapsed`` and ``n_evaluations``.
+    """
     import emcee
 
     prior = logpost.prior

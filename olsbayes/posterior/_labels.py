@@ -110,8 +110,10 @@ def relabel(
 
 
 def dominant_permutation(perms: np.ndarray) -> tuple[np.ndarray, float]:
-    """The most common permutation (K,) of :func:`relabel`'s ``perms`` (..., K), and the
-    fraction of draws that use another one (the label-switch fraction)."""
+    """The most common permutation (K,) of :func:`relabel`'s ``perms`` (..., K).
+
+    Also the fraction of draws that use another one (the label-switch fraction).
+    """
     flat = perms.reshape(-1, perms.shape[-1])
     if flat.shape[0] == 0:
         return np.arange(perms.shape[-1]), 0.0
@@ -121,8 +123,10 @@ def dominant_permutation(perms: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def block_index(perm: np.ndarray, w: int, n_params: int) -> np.ndarray:
-    """Flat index (P,) taking parameters from source ``perm[j]`` into label j's block of
-    w coordinates; trailing non-source parameters (``sigma``) stay in place."""
+    """Flat index (P,) taking parameters from source ``perm[j]`` into label j's block.
+
+    Each block has w coordinates; trailing non-source parameters (``sigma``) stay in place.
+    """
     k = len(perm)
     idx = np.arange(n_params)
     idx[: k * w] = (np.asarray(perm)[:, None] * w + np.arange(w)).ravel()

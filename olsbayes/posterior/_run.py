@@ -92,8 +92,10 @@ def _rhat_checker(sampler, logpost: LogPosterior, prior: ScenePrior, rhat_max: f
 
 
 def _rhat_max(x: np.ndarray, prior: ScenePrior) -> float:
-    """Largest split R-hat over the parameters of draws (W, D, P), angles unwrapped
-    around their circular means."""
+    """Largest split R-hat over the parameters of draws (W, D, P).
+
+    Angles are unwrapped around their circular means.
+    """
     if prior.periodic.any():
         per = prior.periodic
         centre = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)

@@ -146,9 +146,12 @@ def _reasons(result: PosteriorResult, table, crlb_sd: np.ndarray) -> list[list[s
 
 def _correlation_reasons(j: int, corr_j: np.ndarray, src: int | None, w: int, k: int,
                          names: tuple[str, ...]) -> list[str]:
-    """CRLB correlations above HIGH_CORRELATION.  With another source's parameter the
-    two sources are near the resolution limit; within one source (a plate's z and I,
-    say) or with sigma the bound is strongly correlated, no resolution limit involved."""
+    """CRLB correlations above HIGH_CORRELATION.
+
+    With another source's parameter the two sources are near the resolution limit;
+    within one source (a plate's z and I, say) or with sigma the bound is strongly
+    correlated, no resolution limit involved.
+    """
     owner = np.array([i // w if i < k * w else -1 for i in range(corr_j.size)])
     r = np.where(np.isfinite(corr_j), np.abs(corr_j), 0.0)
     r[j] = 0.0

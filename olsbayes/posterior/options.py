@@ -24,8 +24,11 @@ def _flag(name: str, value: object) -> bool:
 
 
 def _check_moves(moves: object) -> object:
-    """A name of :data:`MOVES`, an emcee ``Move``, or a sequence of moves or of
-    ``(move, weight)`` pairs with weights > 0 (emcee's own forms)."""
+    """``moves`` unchanged if valid, else InputError.
+
+    Valid: a name of :data:`MOVES`, an emcee ``Move``, or a sequence of moves or of
+    ``(move, weight)`` pairs with weights > 0 (emcee's own forms).
+    """
     if isinstance(moves, str):
         if moves not in MOVES:
             raise InputError(f"moves must be one of {MOVES} or emcee moves; got {moves!r}")

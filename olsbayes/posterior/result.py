@@ -113,8 +113,10 @@ class PosteriorResult:
         return np.sqrt(np.diag(self.crlb_cov))
 
     def summary(self, hdi_prob: float = 0.94):
-        """Table (pandas DataFrame) of mean, sd, HDI, ESS, R-hat, tau, CRLB;
-        :func:`olsbayes.posterior.summary` of this result."""
+        """Table (pandas DataFrame) of mean, sd, HDI, ESS, R-hat, tau, CRLB.
+
+        :func:`olsbayes.posterior.summary` of this result.
+        """
         return summary(self, hdi_prob=hdi_prob)
 
     def crlb_check(self, rtol: float = 0.2) -> CRLBCheck:

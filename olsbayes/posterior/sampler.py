@@ -51,8 +51,11 @@ def _check_options(options: object, n_params: int) -> tuple[SamplerOptions, int]
 
 
 def _start_coordinates(logpost: LogPosterior, walkers: np.ndarray) -> np.ndarray:
-    """The walkers (W, P) in the sampler's coordinates, refused if some have zero
-    posterior density or they are linearly dependent (emcee could not move them)."""
+    """The walkers (W, P) in the sampler's coordinates.
+
+    Refused if some have zero posterior density or they are linearly dependent (emcee
+    could not move them).
+    """
     from emcee.ensemble import walkers_independent
 
     z0 = logpost.to_sampler(walkers)
