@@ -36,16 +36,22 @@ def _noise_only(works: list[KWork], k: int, top: int, min_gain: float) -> bool:
 
 
 def _could_compete(work: KWork, log_pk: float, floor: float) -> bool:
-    """Whether K's evidence can reach ``floor``: log Z_K <= max log L_K (the prior
-    integrates to 1), so a K whose likelihood maximum plus log p(K) lies below the
-    decisive floor of the most probable K loses whatever its evidence is."""
+    """Whether K's evidence can reach ``floor``.
+
+    log Z_K <= max log L_K (the prior integrates to 1), so a K whose likelihood
+    maximum plus log p(K) lies below the decisive floor of the most probable K loses
+    whatever its evidence is.
+    """
     return bool(work.log_likelihood + log_pk >= floor)
 
 
 def _doubtful(works: list[KWork], score: np.ndarray, rivals: list[int], top: int,
               tie: float) -> list[tuple[int, str]]:
-    """Rivals whose value is untrusted, or trusted but within ``TRUSTED_MARGIN`` of the
-    decision boundary (log odds = +-tie) of a non-decisive comparison, and why."""
+    """Rivals whose value is untrusted or near the decision boundary, and why.
+
+    Near: trusted but within ``TRUSTED_MARGIN`` of the decision boundary
+    (log odds = +-tie) of a non-decisive comparison.
+    """
     out: list[tuple[int, str]] = []
     for k in rivals:
         w = works[k]
@@ -99,8 +105,10 @@ def next_escalation(works: list[KWork], log_pk: np.ndarray, decision: DecisionOp
 
 
 def choose(score: np.ndarray, tie: float) -> tuple[int, list[str]]:
-    """The smallest K within ``tie`` nats of the most probable (log posterior ``score``
-    per K), and a note when that is not the most probable K."""
+    """The smallest K within ``tie`` nats of the most probable (log posterior ``score`` per K).
+
+    Also a note when that is not the most probable K.
+    """
     top = int(np.argmax(score))
     near = np.flatnonzero(score >= score[top] - tie)
     best = int(near.min())

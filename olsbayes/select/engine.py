@@ -69,10 +69,13 @@ MIXTURE_MIN_ESS = 20.0
 
 def mixture_work(model: Model, data: np.ndarray, work: KWork, prior,
                  lower: list[np.ndarray], n_draws: int, *, rng: np.random.Generator) -> KWork:
-    """Replace an untrusted or undefined Laplace value by the mixture importance-sampling
-    evidence (:func:`~olsbayes.select.mixture.mixture_log_evidence`); the Laplace value
-    and its reasons are kept, and the sampler's own doubts (large error, few effective
-    draws, no draw of positive weight) are added to the reasons."""
+    """Replace an untrusted or undefined Laplace value by the mixture evidence.
+
+    The mixture importance-sampling evidence is
+    :func:`~olsbayes.select.mixture.mixture_log_evidence`; the Laplace value and its
+    reasons are kept, and the sampler's own doubts (large error, few effective draws,
+    no draw of positive weight) are added to the reasons.
+    """
     out = mixture_log_evidence(model, data, prior, work.params, lower, n_draws=n_draws,
                                rng=rng, max_draws=2 * n_draws, target_error=0.2)
     why = ()
@@ -99,8 +102,10 @@ def mixture_doubt(work: KWork) -> bool:
 
 def laplace_work(model: Model, k: int, fitted: tuple, prior,
                  thresholds: Mapping[str, float] | None, seconds: float = 0.0) -> KWork:
-    """Laplace evidence of K sources at the ML point ``fitted`` = (fit, params, log L, origin)
-    and the reasons not to trust it."""
+    """Laplace evidence of K sources at the ML point ``fitted``, and the reasons not to trust it.
+
+    ``fitted`` = (fit, params, log L, origin).
+    """
     t0 = time.perf_counter()
     fit, params, ll, origin = fitted
     log_z, fisher, _ = model_laplace(model, params, ll, prior)

@@ -47,8 +47,10 @@ def _box_line(base: np.ndarray, v: np.ndarray, sd: np.ndarray, lo: float, hi: fl
 
 
 def _wide_direction(cov: np.ndarray, n_iter: int = 4) -> np.ndarray:
-    """Unit vectors (n, K) near the widest direction of each covariance (n, K, K): power
-    iteration from the coordinate of largest variance (fixed given cov)."""
+    """Unit vectors (n, K) near the widest direction of each covariance (n, K, K).
+
+    Power iteration from the coordinate of largest variance (fixed given cov).
+    """
     j = np.argmax(np.diagonal(cov, axis1=1, axis2=2), axis=1)
     u = np.take_along_axis(cov, j[:, None, None], axis=2)[..., 0]
     for _ in range(n_iter):

@@ -125,10 +125,13 @@ def location_scales(model, params: np.ndarray, spacing: float | None = None
 
 @dataclass(frozen=True, eq=False)
 class _Component:
-    """One product component.  Source a is drawn from normal m (centre ``mu[a, m]``,
-    sd ``sd[a, m]``) with probability ``w[a, m]``, from radial r (around ``rmu[a, r]``,
-    density proportional to distance^-d between ``r_lo`` and ``r_hi``) with
-    ``w[a, M + r]``, or from its prior with ``w[a, -1]``."""
+    """One product component.
+
+    Source a is drawn from normal m (centre ``mu[a, m]``, sd ``sd[a, m]``) with
+    probability ``w[a, m]``, from radial r (around ``rmu[a, r]``, density proportional
+    to distance^-d between ``r_lo`` and ``r_hi``) with ``w[a, M + r]``, or from its
+    prior with ``w[a, -1]``.
+    """
 
     weight: float
     mu: np.ndarray  # (K, M, d)

@@ -58,9 +58,12 @@ RIDGE_GAIN = 10.0
 
 def _prior_factory(model: Model, data: np.ndarray, priors: object, i_max: float | None
                    ) -> Callable[[int], ScenePrior]:
-    """``K -> ScenePrior`` from ``priors`` (None: default priors with ``i_max`` or a
-    data-derived intensity bound); a prior of the wrong K, kind or with sigma
-    inferred is refused when the factory is called."""
+    """``K -> ScenePrior`` from ``priors``.
+
+    ``priors`` None: default priors with ``i_max`` or a data-derived intensity bound.
+    A prior of the wrong K, kind or with sigma inferred is refused when the factory is
+    called.
+    """
     if priors is None:
         # one data-derived bound shared by every K (plates: over the default box)
         bound = default_priors(model, 1, data=data).intensity.upper if i_max is None else (
@@ -224,8 +227,10 @@ def _evidence(model: Model, data: np.ndarray, k: int, fitted: dict, prior: Scene
 def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.ndarray,
               scene_priors: dict[int, ScenePrior], options: SelectOptions,
               streams: list[list[np.random.Generator]]) -> dict[int, str]:
-    """``auto``: recompute the K in doubt by nested sampling, most probable first
-    (``works`` is updated in place); returns {K: why} of the K sent."""
+    """``auto``: recompute the K in doubt by nested sampling, most probable first.
+
+    ``works`` is updated in place; returns {K: why} of the K sent.
+    """
     escalated: dict[int, str] = {}
     while len(escalated) < options.decision.max_escalations:
         nxt = next_escalation(works, log_pk, options.decision, set(escalated))
