@@ -83,8 +83,10 @@ def declared_settings(fn: Callable) -> tuple[frozenset[str] | None, Mapping[str,
 
 
 def check_signature(trial: Callable, name: str) -> None:
-    """Refuse a trial that cannot be called as ``trial(settings, rng=...)`` (``rngs=``
-    for vectorised trials), before any trial runs."""
+    """Refuse a trial that cannot be called as ``trial(settings, rng=...)``.
+
+    Vectorised trials take ``rngs=`` instead.  Checked before any trial runs.
+    """
     keyword = "rngs" if is_vectorized(trial) else "rng"
     try:
         sig = inspect.signature(trial)

@@ -98,8 +98,11 @@ def _read_frames(path: Path) -> tuple[list[tuple[bytes, bytes]], int, int]:
 
 
 def _lock(path: Path) -> int | None:
-    """Exclusive advisory lock on ``path``: the locked descriptor, or None where file
-    locks are unavailable (no ``fcntl``, or a file system without locks: warns)."""
+    """Exclusive advisory lock on ``path``: the locked descriptor, or None.
+
+    None where file locks are unavailable (no ``fcntl``, or a file system without
+    locks: warns).
+    """
     try:
         import fcntl
     except ImportError:  # pragma: no cover - not on POSIX
@@ -122,8 +125,11 @@ def _lock(path: Path) -> int | None:
 
 
 class Checkpoint:
-    """An open study checkpoint; create or resume with :meth:`open`, release with
-    :meth:`close` (also a context manager)."""
+    """An open study checkpoint.
+
+    Create or resume with :meth:`open`, release with :meth:`close` (also a context
+    manager).
+    """
 
     def __init__(self, path: Path, records: list[ChunkRecord], lock_fd: int | None = None):
         self.path = path

@@ -158,8 +158,11 @@ def _select(model: Model, data: np.ndarray, k: int, settings: dict, rng) -> int:
 
 def _timed_estimates(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,
                      rngs: list) -> tuple:
-    """Estimates (T, P) of ``data`` (T, N), converged (T,), n_evaluations (T,), wall and
-    CPU seconds per estimate (T,)."""
+    """Estimates (T, P) of ``data`` (T, N), with their convergence, cost and timing.
+
+    Returns the estimates, converged (T,), n_evaluations (T,), wall and CPU seconds
+    per estimate (T,).
+    """
     t = len(rngs)
     params = np.empty((t, 2 * k))
     conv, nev = np.zeros(t, bool), np.zeros(t, np.int64)

@@ -137,8 +137,10 @@ class RankTest:
 
 def rank_test(ranks: np.ndarray, n_draws: int, n_bins: int, *, rng: np.random.Generator
               ) -> RankTest:
-    """Histogram + chi-square and KS tests of ranks in 0..n_draws (n_draws + 1 divisible
-    by n_bins for equal bins)."""
+    """Histogram + chi-square and KS tests of ranks in 0..n_draws.
+
+    The bins are equal when n_draws + 1 is divisible by n_bins.
+    """
     ranks = np.asarray(ranks, int)
     counts = np.bincount(ranks * n_bins // (n_draws + 1), minlength=n_bins)
     chi2, p = stats.chisquare(counts)

@@ -36,8 +36,11 @@ def _unit_responses(model, theta: np.ndarray) -> np.ndarray:
 
 
 def _screen(model, data: np.ndarray, k: int, n_grid: int, margin: float) -> np.ndarray:
-    """Grid cells (m, k) of angle indices whose best unconstrained log-likelihood is
-    within ``margin`` of the grid's best (an upper bound: the box is ignored)."""
+    """Grid cells (m, k) of angle indices near the grid's best log-likelihood.
+
+    Kept: cells whose best unconstrained log-likelihood is within ``margin`` of the
+    grid's best (an upper bound: the box is ignored).
+    """
     th = -np.pi + 2 * np.pi * np.arange(n_grid) / n_grid
     g = _unit_responses(model, th)
     gd = g @ data
@@ -60,8 +63,9 @@ def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float, 
                          rng: np.random.Generator | int | None = None, n_grid: int = 512,
                          per_cell: int = 4, margin: float = 40.0
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted draws of the posterior of 1 or 2 ring sources (uniform directions,
-    intensities Uniform(0, i_max), known sigma).
+    """Weighted draws of the posterior of 1 or 2 ring sources.
+
+    Uniform directions, intensities Uniform(0, i_max), known sigma.
 
     Parameters
     ----------
@@ -127,8 +131,10 @@ def weighted_cdf(draws: np.ndarray, weights: np.ndarray, value: np.ndarray) -> n
 
 @trial_settings("n_sensors", "sigma", "n_sources", "i_max", "n_grid")
 def sbc_exact(settings: dict, *, rng: np.random.Generator) -> dict:
-    """One SBC replicate of :func:`exact_ring_posterior`, same settings and random stream
-    as :func:`~olsbayes.studies.sbc.sbc_posterior` (so the same scene for the same seed).
+    """One SBC replicate of :func:`exact_ring_posterior`.
+
+    Same settings and random stream as :func:`~olsbayes.studies.sbc.sbc_posterior` (so
+    the same scene for the same seed).
 
     Returns ``cdf`` (P,): posterior probability below the canonical truth, uniform on
     (0, 1) for an exact posterior; ``ess``: effective number of importance draws.

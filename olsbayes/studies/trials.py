@@ -17,8 +17,10 @@ __all__ = ["ring_scene", "noise_check", "noise_check_batch"]
 
 
 def ring_scene(settings: dict, *, rng: np.random.Generator) -> np.ndarray:
-    """Random ring scene: K sources, the first uniform on the circle, the others at
-    multiples of ``separation`` (rad) from it, all of intensity ``intensity``.
+    """Random ring scene: K sources, all of intensity ``intensity``.
+
+    The first is uniform on the circle, the others at multiples of ``separation``
+    (rad) from it.
 
     Settings: ``n_sources`` (default 1), ``separation`` (default 2 pi / K),
     ``intensity`` (default 1.0).  Returns the flat parameter vector (2K,).
