@@ -59,5 +59,7 @@ class NullSpaceWarning(OlsBayesWarning):
 
 
 class MultimodalWarning(OlsBayesWarning):
-    """A distinct local optimum fits almost as well as the estimate: the likelihood is
-    multimodal there and Fisher (CRLB) errors understate the uncertainty."""
+    """A distinct local optimum fits almost as well as the estimate.
+
+    The likelihood is multimodal there and Fisher (CRLB) errors understate the uncertainty.
+    """

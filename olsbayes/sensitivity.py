@@ -41,6 +41,7 @@ class Sensitivity(Frozen):
         """dg/dc, same shape as ``c``."""
 
     def __call__(self, c: np.ndarray) -> np.ndarray:
+        """g(c): the same as :meth:`value`."""
         return self.value(c)
 
     def __repr__(self) -> str:
@@ -58,9 +59,11 @@ class Cosine(Sensitivity):
     kink = True
 
     def value(self, c: np.ndarray) -> np.ndarray:
+        """g(c) = max(c, 0), same shape as ``c``."""
         return np.maximum(c, 0.0)
 
     def derivative(self, c: np.ndarray) -> np.ndarray:
+        """dg/dc: 1 for c > 0, 0 for c <= 0; same shape as ``c``."""
         return (np.asarray(c) > 0.0).astype(float)
 
 
@@ -79,9 +82,11 @@ class CosinePower(Sensitivity):
         self.kink = self.p == 1.0
 
     def value(self, c: np.ndarray) -> np.ndarray:
+        """g(c) = max(c, 0)**p, same shape as ``c``."""
         return _power(np.maximum(c, 0.0), self.p)
 
     def derivative(self, c: np.ndarray) -> np.ndarray:
+        """dg/dc = p max(c, 0)**(p - 1), same shape as ``c``; for p = 1 as :class:`Cosine`."""
         cp = np.maximum(c, 0.0)
         if self.p == 1.0:
             return (cp > 0.0).astype(float)
@@ -151,9 +156,11 @@ class CustomSensitivity(Sensitivity):
         self.name, self.kink = str(name), bool(kink)
 
     def value(self, c: np.ndarray) -> np.ndarray:
+        """g(c) by the user's ``func``, as a float array."""
         return np.asarray(self._func(c), dtype=float)
 
     def derivative(self, c: np.ndarray) -> np.ndarray:
+        """dg/dc by the user's ``derivative``, as a float array."""
         return np.asarray(self._deriv(c), dtype=float)
 
     def __repr__(self) -> str:
@@ -161,10 +168,12 @@ class CustomSensitivity(Sensitivity):
 
 
 def is_clipped_cosine(law: Sensitivity) -> bool:
-    """Whether ``law`` is the paper's clipped cosine itself (:class:`Cosine`, or
-    :class:`CosinePower` with p = 1) -- not a subclass or a custom law that may
-    behave otherwise.  The compiled kernels, the exact enumeration and the kink
-    moves of the fast fit rely on its piecewise-linear form."""
+    """Whether ``law`` is the paper's clipped cosine itself.
+
+    That is :class:`Cosine`, or :class:`CosinePower` with p = 1 -- not a subclass or a
+    custom law that may behave otherwise.  The compiled kernels, the exact enumeration
+    and the kink moves of the fast fit rely on its piecewise-linear form.
+    """
     return type(law) is Cosine or (type(law) is CosinePower and law.p == 1.0)
 
 

@@ -59,6 +59,7 @@ class WindowMoves:
 
     @property
     def n_moves(self) -> int:
+        """Number of moves M."""
         return int(self.lam.shape[0])
 
 

@@ -17,7 +17,7 @@ _TEX = {"theta": r"\theta", "lon": r"\lambda", "lat": r"\varphi", "x": "x", "y":
 
 
 def param_labels(names: list[str] | tuple[str, ...]) -> list[str]:
-    """Axis labels with units, e.g. ``theta[0]`` -> ``$\\theta_{0}$ [rad]``."""
+    r"""Axis labels with units, e.g. ``theta[0]`` -> ``$\theta_{0}$ [rad]``."""
     out = []
     for nm in names:
         base, _, rest = nm.partition("[")

@@ -155,6 +155,7 @@ class Uniform(Prior):
         return self.lo + u * (self.hi - self.lo)
 
     def to_scipy(self):
+        """The equivalent frozen ``scipy.stats.uniform`` on ``[lo, hi]``."""
         from scipy import stats
 
         return stats.uniform(loc=self.lo, scale=self.hi - self.lo)
@@ -192,6 +193,7 @@ class LogUniform(Prior):
         return self.lo * np.exp(u * self._log_ratio)
 
     def to_scipy(self):
+        """The equivalent frozen ``scipy.stats.loguniform(lo, hi)``."""
         from scipy import stats
 
         return stats.loguniform(self.lo, self.hi)
@@ -224,6 +226,7 @@ class HalfNormal(Prior):
         return self.scale * np.sqrt(2.0) * erfinv(u)
 
     def to_scipy(self):
+        """The equivalent frozen ``scipy.stats.halfnorm(scale=scale)``."""
         from scipy import stats
 
         return stats.halfnorm(scale=self.scale)
@@ -251,6 +254,7 @@ class Exponential(Prior):
         return -self.scale * np.log1p(-u)
 
     def to_scipy(self):
+        """The equivalent frozen ``scipy.stats.expon(scale=scale)``."""
         from scipy import stats
 
         return stats.expon(scale=self.scale)
@@ -281,6 +285,7 @@ class CircularUniform(Prior):
         return -np.pi + 2.0 * np.pi * u
 
     def to_scipy(self):
+        """The equivalent frozen ``scipy.stats.uniform`` on ``[-pi, pi]``."""
         from scipy import stats
 
         return stats.uniform(loc=-np.pi, scale=2.0 * np.pi)
