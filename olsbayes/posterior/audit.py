@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -11,10 +11,38 @@ from ..bounds import kink_sources
 from ..circular import wrap_angle
 from ._arviz import summary_frame
 
-if TYPE_CHECKING:  # annotations only: the result's methods call this module
-    from .result import PosteriorResult
-
 __all__ = ["summary", "crlb_check", "CRLBCheck"]
+
+class PosteriorDraws(Protocol):
+    """What the audit reads of a posterior (a :class:`~olsbayes.posterior.PosteriorResult`).
+
+    The audit depends on this shape, not on the result class, whose convenience
+    methods call the audit.
+    """
+
+    model: Any
+    prior: Any
+    n_sources: int
+    names: tuple[str, ...]
+    estimate: np.ndarray
+    crlb_cov: np.ndarray
+    tau: np.ndarray
+
+    @property
+    def n_params(self) -> int:
+        """Number P of parameters per draw."""
+
+    @property
+    def periodic(self) -> np.ndarray:
+        """Which of the P parameters are angles, bool (P,)."""
+
+    @property
+    def crlb_std(self) -> np.ndarray:
+        """CRLB standard deviations at the estimate, (P,)."""
+
+    def unwrapped_samples(self) -> np.ndarray:
+        """Draws (W, D, P) with angles unwrapped around their circular means."""
+
 
 #: Below this ratio I / sd_CRLB(I) a source counts as low-SNR (nonlinear regime).
 LOW_SNR = 10.0
@@ -25,7 +53,7 @@ KINK_SDS = 2.0
 HIGH_CORRELATION = 0.9
 
 
-def summary(result: PosteriorResult, hdi_prob: float = 0.94):
+def summary(result: PosteriorDraws, hdi_prob: float = 0.94):
     """Posterior table, one row per parameter in layout order.
 
     Angles are summarised circularly: draws are unwrapped around their circular
@@ -109,7 +137,7 @@ def _prior_sd(prior) -> float:
     return float(np.std(q))
 
 
-def _reasons(result: PosteriorResult, table, crlb_sd: np.ndarray) -> list[list[str]]:
+def _reasons(result: PosteriorDraws, table, crlb_sd: np.ndarray) -> list[list[str]]:
     p = result.n_params
     w = result.prior.n_loc + 1
     k = result.n_sources
@@ -165,7 +193,7 @@ def _correlation_reasons(j: int, corr_j: np.ndarray, src: int | None, w: int, k:
     return out
 
 
-def _near_kink(result: PosteriorResult, crlb_sd: np.ndarray) -> np.ndarray:
+def _near_kink(result: PosteriorDraws, crlb_sd: np.ndarray) -> np.ndarray:
     """Per source: a sub-sensor's horizon (c = 0) within KINK_SDS CRLB sd of the direction.
 
     For distant sources |c| is the sine of the angle to the horizon, compared
@@ -183,7 +211,7 @@ def _near_kink(result: PosteriorResult, crlb_sd: np.ndarray) -> np.ndarray:
     return margin < KINK_SDS * loc_sd
 
 
-def crlb_check(result: PosteriorResult, rtol: float = 0.2) -> CRLBCheck:
+def crlb_check(result: PosteriorDraws, rtol: float = 0.2) -> CRLBCheck:
     """Compare every posterior sd with its CRLB at the posterior mean.
 
     At high SNR the posterior is Gaussian with covariance ~ the inverse Fisher
