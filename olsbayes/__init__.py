@@ -22,20 +22,18 @@ from .errors import (
     ResolutionWarning,
 )
 from .geometry import Plate, Ring, SensorArray, Sphere
-from .imaging import ImageResult, image
-from .ml import MLResult, fit_ml
+from .imaging import ImageOptions, ImageResult, image
+from .ml import FastOptions, MLResult, MultistartOptions, fit_ml
 from .model import Model
-from .posterior import PosteriorResult, write_report
+from .posterior import PosteriorResult, SamplerOptions, write_report
 from .posterior import sample as sample_posterior
 from .priors import ScenePrior, default_priors
 from .scene import Scene
-from .select import SelectionResult, select_k
+from .select import SelectionResult, SelectOptions, select_k
 from .sensitivity import Cosine, CosinePower, CustomSensitivity, Sensitivity, get_sensitivity
-from .studies import run_study
+from .studies import Estimator, run_study
 
 __all__ = [
-    "image",
-    "ImageResult",
     "__version__",
     # geometry and sensitivity
     "SensorArray",
@@ -57,17 +55,26 @@ __all__ = [
     "crlb_eq4",
     # maximum likelihood
     "fit_ml",
+    "FastOptions",
+    "MultistartOptions",
     "MLResult",
     # priors and posteriors
     "ScenePrior",
     "default_priors",
     "sample_posterior",
+    "SamplerOptions",
     "PosteriorResult",
     "write_report",
+    # imaging of known directions
+    "image",
+    "ImageOptions",
+    "ImageResult",
     # studies
     "run_study",
+    "Estimator",
     # number of sources
     "select_k",
+    "SelectOptions",
     "SelectionResult",
     # errors and warnings
     "OlsBayesError",
