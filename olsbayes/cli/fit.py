@@ -121,7 +121,7 @@ def _z(model: Model, est: np.ndarray, true: np.ndarray, std: np.ndarray) -> np.n
     err = np.asarray(est) - true
     if model.kind != "position":
         blocks = err.reshape(err.shape[:-1] + (-1, model.n_loc + 1))
-        blocks[..., 0] = np.angle(np.exp(1j * blocks[..., 0]))  # wrap angle errors
+        blocks[..., 0] = wrap_angle(blocks[..., 0])
         err = blocks.reshape(err.shape)
     with np.errstate(divide="ignore", invalid="ignore"):
         return err / std

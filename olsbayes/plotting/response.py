@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from ..circular import wrap_angle
 from ..errors import InputError
 from ..model import Model
 from ..scene import Scene
@@ -70,7 +71,7 @@ def plot_response(
         if ring:
             params = model.pack(scene) if isinstance(scene, Scene) else np.asarray(scene)
             for th in params.reshape(-1, 2)[:, 0]:
-                ax.axvline(np.angle(np.exp(1j * th)), color=line.get_color(), ls=style,
+                ax.axvline(wrap_angle(th), color=line.get_color(), ls=style,
                            lw=0.8, alpha=0.6)
     ax.set_ylabel("reading")
     ax.set_title(f"{model.array!r}, {model.sensitivity!r}")

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..circular import wrap_angle
 from ..errors import InputError
 from ..model import Model
 
@@ -89,7 +90,7 @@ def plot_sky(
         fig = plt.figure(figsize=(7.0, 4.0), layout="constrained")
         ax = fig.add_subplot(projection="mollweide" if projection == "mollweide" else None)
     fig = ax.figure
-    lon = np.pi - np.mod(np.pi - lon, 2 * np.pi)
+    lon = wrap_angle(lon)
     shape = _grid_shape(lon, lat)
     kw = dict(cmap=cmap, vmin=vmin, vmax=vmax)
     if shape is not None and min(shape) > 1:
