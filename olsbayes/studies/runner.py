@@ -8,6 +8,7 @@ import math
 import os
 import pickle
 import sys
+import tempfile
 import types
 import warnings
 from collections.abc import Callable, Mapping
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_path, ensure_dir
-from .._validation import integer
+from .._validation import _short, integer
 from .._version import __version__
 from ..errors import InputError
 from ._work import check_signature, declared_settings, is_vectorized, run_chunk
@@ -123,22 +124,27 @@ class _Study:
 
 
 def _writable(path: object, name: str) -> Path:
-    """``path`` as a Path, refused before any work if a file cannot be written there."""
+    """``path`` as a Path, refused before any work if a file cannot be written there.
+
+    Creates the file's folder if needed, and checks by creating (and removing) a
+    temporary file in it that a file can be written there.
+    """
     try:
         p = Path(path)  # type: ignore[arg-type]
-        if p.is_dir():
-            raise InputError(f"{name} {str(p)!r} is a folder; give a file name")
-        if p.exists() and not p.is_file():
-            raise InputError(f"{name} {str(p)!r} is not a regular file (a device, FIFO or "
-                             "socket); give a file name")
-        folder = p.parent
-        while not folder.exists() and folder != folder.parent:
-            folder = folder.parent
+        is_dir, exists, is_file = p.is_dir(), p.exists(), p.is_file()
     except (TypeError, ValueError, OSError) as exc:
-        raise InputError(f"{name} must be a usable file path; got {path!r} ({exc})") from None
-    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
-        raise InputError(f"{name} {str(p)!r} cannot be written: {str(folder)!r} is not a "
-                         "writable folder")
+        raise InputError(f"{name} must be a file path; got {_short(path)} ({exc})") from None
+    if is_dir:
+        raise InputError(f"{name} {str(p)!r} is a folder; give a file name")
+    if exists and not is_file:
+        raise InputError(f"{name} {str(p)!r} is not a regular file (a device, FIFO or "
+                         "socket); give a file name")
+    folder = ensure_dir(p.parent, f"folder of {name}")
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise InputError(f"{name} {str(p)!r} cannot be written: {exc.strerror or exc}") from None
     return p
 
 
@@ -241,8 +247,6 @@ def run_study(
     study = _Study(trial, g, fixed_s, n_trials, study_entropy(rng))
     fp = _fingerprint(trial, g, fixed_s, n_trials, study.entropy)
     results = Results(g.n_cells, n_trials, limit)
-    if checkpoint is not None:
-        ensure_dir(checkpoint.parent, "checkpoint folder")
     ckpt = Checkpoint.open(checkpoint, fp, max_bytes=limit) if checkpoint is not None else None
     try:  # the checkpoint stays locked against a second study until this one ends
         if ckpt is not None:
