@@ -171,7 +171,10 @@ def _frame_at(buf: memoryview, pos: int) -> tuple[bytes, int] | None:
     end = pos + HEAD.size + length
     if magic != MAGIC or kind not in _KINDS or end > len(buf):
         return None
-    if zlib.crc32(buf[pos + HEAD.size:end]) != crc:
+    payload = buf[pos + HEAD.size:end]
+    if zlib.crc32(payload) != crc:
+        return None
+    if kind == b"P" and payload.tobytes().strip(b"\0"):  # padding is zeros: else a bad kind
         return None
     return kind, end
 

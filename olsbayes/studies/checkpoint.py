@@ -27,16 +27,29 @@ import hashlib
 import json
 import os
 import stat
+import tempfile
 import warnings
 import zlib
 from pathlib import Path
 
 import numpy as np
 
+from .._io import _UMASK
 from ..errors import InputError
-from ._frames import HEAD, MAGIC, ChunkRecord, decode_chunk, encode_chunk, frame, padding, scan
+from ._frames import (
+    HEAD,
+    MAGIC,
+    ChunkRecord,
+    Scan,
+    decode_chunk,
+    encode_chunk,
+    frame,
+    padding,
+    scan,
+)
 
-__all__ = ["Checkpoint", "ChunkRecord", "fingerprint_key", "recorded_seed", "FORMAT"]
+__all__ = ["Checkpoint", "ChunkRecord", "fingerprint_key", "recorded_seed", "read_chunks",
+           "FORMAT"]
 
 FORMAT = "olsbayes-study-checkpoint/2"
 #: Largest header frame read (bytes): a fingerprint is a few kB.
@@ -146,6 +159,26 @@ def recorded_seed(path: str | os.PathLike) -> int | None:
         os.close(fd)
 
 
+def read_chunks(path: str | os.PathLike) -> list[ChunkRecord]:
+    """The valid chunks of the checkpoint at ``path``, read without locking or repairing it.
+
+    For inspection: damaged frames are left out; a file whose header or chunks
+    are not valid raises :class:`~olsbayes.errors.InputError`.
+    """
+    p = Path(path)
+    fd = _open(p, os.O_RDONLY)
+    try:
+        found = scan(_read_all(fd, os.fstat(fd).st_size))
+    finally:
+        os.close(fd)
+    if not found.frames or found.frames[0][:2] != (0, b"H"):
+        raise InputError(f"checkpoint {str(p)!r} has no valid header")
+    header = _header(found.frames[0][2], p)
+    n_cells, n_trials = study_size(header["fingerprint"])
+    return [decode_chunk(payload, header["key"], n_cells, n_trials)
+            for _, kind, payload in found.frames[1:] if kind == b"C"]
+
+
 class Checkpoint:
     """An open, locked study checkpoint.
 
@@ -203,6 +236,11 @@ class Checkpoint:
         """
         path = Path(path)
         key = fingerprint_key(fingerprint)
+        header = frame(b"H", json.dumps({"format": FORMAT, "key": key, "fingerprint": fingerprint},
+                                        sort_keys=True).encode())
+        fd = None if os.path.lexists(path) else _create(path, header)
+        if fd is not None:
+            return cls(path, fd, key, len(header), [], [])
         fd = _open(path, os.O_RDWR | os.O_CREAT)
         _lock(fd, path)
         try:
@@ -211,20 +249,19 @@ class Checkpoint:
                 raise InputError(f"checkpoint {str(path)!r} holds {size / 1e9:.3g} GB, more "
                                  f"than the memory limit of {max_bytes / 1e9:.3g} GB")
             raw = _read_all(fd, size)
-            if _is_new(raw):
-                header = {"format": FORMAT, "key": key, "fingerprint": fingerprint}
-                end = _write(fd, frame(b"H", json.dumps(header, sort_keys=True).encode()), 0)
+            found = scan(raw)
+            if not found.frames and _torn_header(raw):  # left empty, or torn while created
+                end = _write(fd, header, 0)
                 os.ftruncate(fd, end)
                 return cls(path, fd, key, end, [], [])
-            return cls._resume(path, fd, raw, key, fingerprint)
+            return cls._resume(path, fd, found, key, fingerprint)
         except BaseException:
             os.close(fd)
             raise
 
     @classmethod
-    def _resume(cls, path: Path, fd: int, raw: bytearray, key: str,
+    def _resume(cls, path: Path, fd: int, found: Scan, key: str,
                 fingerprint: dict) -> Checkpoint:
-        found = scan(raw)
         frames = found.frames
         if not frames or frames[0][0] != 0 or frames[0][1] != b"H":
             if any(kind == b"C" for _, kind, _ in frames):
@@ -245,14 +282,15 @@ class Checkpoint:
         n_cells, n_trials = study_size(fingerprint)
         records = []
         for pos, kind, payload in frames[1:]:
-            if kind != b"C":
-                raise InputError(f"checkpoint {str(path)!r} holds a second header at byte "
-                                 f"{pos}: it joins two files; delete it to start afresh")
+            if kind != b"C":  # a header anywhere else: a chunk whose kind byte was damaged
+                found.damaged.append((pos, pos + HEAD.size + len(payload)))
+                continue
             try:
                 records.append(decode_chunk(payload, key, n_cells, n_trials))
             except InputError as exc:
                 raise InputError(f"checkpoint {str(path)!r}, frame at byte {pos}: {exc}; "
                                  "delete the file to start afresh") from None
+        found.damaged.sort()
         _heal(fd, path, found)
         return cls(path, fd, key, found.end, records, found.damaged)
 
@@ -265,13 +303,42 @@ class Checkpoint:
         self.records.append(ChunkRecord(int(cell), np.asarray(trials, np.int64), values))
 
 
-def _is_new(raw: bytearray) -> bool:
-    """True for an empty file, or one holding only a header torn while it was written."""
-    if not raw:
-        return True
-    if len(raw) < HEAD.size:
-        return raw == MAGIC[:len(raw)] or raw[:4] == MAGIC and raw[4:5] in (b"", b"H")
-    magic, kind, length, _ = HEAD.unpack_from(raw)
+def _create(path: Path, header: bytes) -> int | None:
+    """Publish a new checkpoint at ``path`` already holding its header and locked.
+
+    The header is written to a temporary file whose descriptor is locked, then
+    hard-linked to ``path``, which fails if ``path`` exists: the file never
+    appears empty or unlocked.  Returns the locked descriptor, or None when
+    ``path`` appeared meanwhile or the file system has no hard links (then the
+    caller opens ``path`` and decides under its lock).
+    """
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".new", dir=path.parent)
+    except OSError as exc:
+        raise InputError(f"checkpoint {str(path)!r} cannot be created: "
+                         f"{exc.strerror or exc}") from None
+    try:
+        _lock(fd, path)
+        _write(fd, header, 0)
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        os.link(tmp, path)
+    except OSError:
+        os.close(fd)
+        return None
+    except BaseException:
+        os.close(fd)
+        raise
+    finally:
+        os.unlink(tmp)
+    return fd
+
+
+def _torn_header(raw: bytearray) -> bool:
+    """True for an empty file, or a prefix of a header frame (a creation cut short)."""
+    head = bytes(raw[:HEAD.size])
+    if len(head) < HEAD.size:
+        return MAGIC.startswith(head[:4]) and head[4:5] in (b"", b"H")
+    magic, kind, length, _ = HEAD.unpack(head)
     return magic == MAGIC and kind == b"H" and HEAD.size + length > len(raw)
 
 
