@@ -200,7 +200,7 @@ def make_grid(grid: object, parsers: Parsers | None = None) -> Grid:
     names, values = [], []
     for key, axis in grid.items():
         name = _check_name("grid axis", key)
-        if isinstance(axis, str | bytes) or not hasattr(axis, "__iter__"):
+        if isinstance(axis, str | bytes | Mapping) or not hasattr(axis, "__iter__"):
             raise InputError(f"grid[{name!r}] must be a list of values; got {_short(axis)}")
         items = np.asarray(axis).tolist() if isinstance(axis, np.ndarray) else list(axis)
         vals = tuple(_value(f"grid[{name!r}][{i}]", v, parsers.get(name))

@@ -131,6 +131,8 @@ def _writable(path: object, name: str) -> Path:
     """
     try:
         p = Path(path)  # type: ignore[arg-type]
+        if "\0" in str(p) or not str(p):
+            raise ValueError("empty, or holds a NUL byte")
         is_dir, exists, is_file = p.is_dir(), p.exists(), p.is_file()
     except (TypeError, ValueError, OSError) as exc:
         raise InputError(f"{name} must be a file path; got {_short(path)} ({exc})") from None
