@@ -8,7 +8,12 @@ CRLB.  An estimator is a table {name = ..., option = value} (listed at the end o
 `olsbayes study --help`); a name alone ("fast", "exact", "nested") stands for its
 table with the default options.  The result's `estimator` coordinate holds
 canonical labels such as "multistart(n_starts=5)".  Unknown estimators, options
-and settings are refused before any trial runs.
+and settings (with a did-you-mean), values out of range and results that would
+not fit in max_memory_gb are refused before any trial runs.
+
+A study file is code: trial = "package.module:function" imports that module and
+runs the function, as `python script.py` would.  Relative out and checkpoint
+paths are relative to this file's folder; --out is relative to the current one.
 
   [study]
   trial = "ring_estimate"        # or noise_check, or "package.module:function"
@@ -18,6 +23,7 @@ and settings are refused before any trial runs.
   checkpoint = "study.ckpt"      # optional; resume with --resume after a crash
   executor = "processes"         # serial | threads | processes | dask
   workers = 2
+  max_memory_gb = 4              # optional budget of the result arrays
 
   [grid]
   estimator = [{name = "fast"}, {name = "multistart", n_starts = 5}]
