@@ -5,12 +5,14 @@ holding the study's fingerprint (grid, fixed settings, trials per cell, seed,
 trial function, package version) and its SHA-256 (the study key), then one
 frame per finished chunk, each with a crc32 and a digest keyed with the study key.
 
-Creation and resumption are one step under one lock: the file is opened (and
-created if absent) and the same descriptor is locked (``flock``) at once; only
-the holder of the lock decides, from the file's contents, whether to write a
-fresh header or to resume.  Of two studies started together on one path, one
-runs and the other is refused ("in use by another running study"); the kernel
-drops the lock when its holder dies, even by ``kill -9``.
+A new checkpoint appears complete and locked: its header is written to a
+temporary file whose descriptor holds an exclusive ``flock``, and that file is
+hard-linked to the path, which fails if the path exists (an exclusive create).
+An existing file is opened and locked on the same descriptor before it is read,
+and only the lock's holder decides from its contents whether to resume or, for
+a file left empty, to write the header.  Of two studies started together on one
+path, one runs and the other is refused ("in use by another running study"); the
+kernel drops the lock when its holder dies, even by ``kill -9``.
 
 A chunk is appended with a single ``pwrite`` and an ``fsync``, so a killed study
 leaves the file ending on a complete frame or a torn one.  On resume a torn end

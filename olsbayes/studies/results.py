@@ -12,6 +12,7 @@ returned a single number.
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import warnings
 from collections.abc import Callable, Iterator
@@ -47,8 +48,8 @@ def memory_limit(max_memory_gb: object = None) -> int:
         except (AttributeError, OSError, ValueError):  # pragma: no cover - not POSIX
             phys = 2 * _DEFAULT_CAP
         return int(min(_DEFAULT_CAP, phys / 2))
-    if isinstance(max_memory_gb, bool) or not isinstance(max_memory_gb, int | float) \
-            or not 0 < max_memory_gb <= 1e6 or math.isnan(max_memory_gb):
+    if isinstance(max_memory_gb, bool) or not isinstance(max_memory_gb, numbers.Real) \
+            or not 0 < float(max_memory_gb) <= 1e6:
         raise InputError(f"max_memory_gb must be a number in (0, 1e6]; got {max_memory_gb!r}")
     return int(max_memory_gb * _GB)
 

@@ -181,7 +181,10 @@ CHILD = textwrap.dedent("""
             except BaseException as exc:  # a traceback would have reached the user
                 code = f"{type(exc).__name__}: {exc}"
         out.append([argv, code, err.getvalue()])
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    # peak resident memory of this process image (ru_maxrss would include the parent's,
+    # which survives exec)
+    status = open("/proc/self/status").read()
+    peak = int(status.split("VmHWM:")[1].split()[0]) * 1024
     print(json.dumps({"cases": out, "peak": peak}))
 """)
 
