@@ -14,11 +14,13 @@ import multiprocessing
 import os
 import queue
 import struct
+import tempfile
 import time
 import tracemalloc
 import warnings
 import zipfile
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -185,8 +187,20 @@ def _damage(data: bytes, rng: np.random.Generator, chunks: list) -> tuple[bytes,
     return bytes(bad), hit, kind
 
 
-def test_fault_injection_keeps_every_valid_trial_and_reruns_every_lost_one(pristine, tmp_path):
+@pytest.fixture
+def fast_dir(tmp_path):
+    """A folder in memory where there is one (fsync costs nothing there), else ``tmp_path``."""
+    shm = Path("/dev/shm")
+    if not (shm.is_dir() and os.access(shm, os.W_OK)):
+        yield tmp_path
+        return
+    with tempfile.TemporaryDirectory(dir=shm) as d:
+        yield Path(d)
+
+
+def test_fault_injection_keeps_every_valid_trial_and_reruns_every_lost_one(pristine, fast_dir):
     ref, data, chunks = pristine
+    tmp_path = fast_dir
     header_end = chunks[0][0]
     rng = np.random.default_rng(2024)
     tally = {"identical": 0, "refused": 0}
@@ -289,9 +303,6 @@ def test_edited_checkpoints_are_refused_with_a_clear_error(pristine, tmp_path):
 
 
 def read_chunks_of(data: bytes):
-    import tempfile
-    from pathlib import Path
-
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "x.ckpt"
         p.write_bytes(data)
