@@ -8,7 +8,12 @@ CRLB.  An estimator is a table {name = ..., option = value} (listed at the end o
 `olsbayes study --help`); a name alone ("fast", "exact", "nested") stands for its
 table with the default options.  The result's `estimator` coordinate holds
 canonical labels such as "multistart(n_starts=5)".  Unknown estimators, options
-and settings are refused before any trial runs.
+and settings (with a did-you-mean), values out of range and results that would
+not fit in max_memory_gb are refused before any trial runs.
+
+A study file is code: trial = "package.module:function" imports that module and
+runs the function, as `python script.py` would.  Relative out and checkpoint
+paths are relative to this file's folder; --out is relative to the current one.
 
   [study]
   trial = "ring_estimate"        # or noise_check, or "package.module:function"
@@ -18,6 +23,7 @@ and settings are refused before any trial runs.
   checkpoint = "study.ckpt"      # optional; resume with --resume after a crash
   executor = "processes"         # serial | threads | processes | dask
   workers = 2
+  max_memory_gb = 4              # optional budget of the result arrays
 
   [grid]
   estimator = [{name = "fast"}, {name = "multistart", n_starts = 5}]
@@ -37,11 +43,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import tomllib
+import inspect
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..config import Field, Section, parse_config, register_section
+from ..config import Field, Section, load_config, register_section
 from ..errors import ConfigError, InputError
 from ..studies import ESTIMATORS, EXECUTORS, run_study
 from ._common import _parse_override, add_command, add_json_arg, emit, format_table
@@ -70,8 +77,14 @@ STUDY_SECTION = register_section(Section(
         "workers": Field("int", low=1, high=100_000, doc="local workers (default: cores)"),
         "scheduler": Field("str", doc="Dask scheduler address, e.g. tcp://host:8786"),
         "chunk_size": Field("int", low=1, high=10**6, doc="trials per task"),
+        "max_memory_gb": Field("float", positive=True, high=1e6,
+                               doc="memory budget of the results, GB (default: half the "
+                                   "memory, at most 4)"),
     },
 ))
+for _free in ("grid", "fixed"):
+    register_section(Section(name=_free, fields={}, free=True,
+                             doc=f"a study's [{_free}] settings, checked against its trial"))
 _TABLES = ("study", "grid", "fixed")
 
 
@@ -96,7 +109,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--executor", choices=EXECUTORS, default=None, help="override [study]")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler address (implies --executor dask)")
-    p.add_argument("--workers", type=int, default=None, help="local workers")
+    p.add_argument("--workers", type=_positive, default=None, help="local workers (>= 1)")
     p.add_argument("--out", type=Path, default=None, help="NetCDF result file")
     p.add_argument("--resume", action="store_true",
                    help="continue the study in the [study] checkpoint file")
@@ -105,47 +118,48 @@ def register(subparsers: Any) -> None:
     p.set_defaults(run=run)
 
 
-def _load_trial(spec: str, source: str):
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1; got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1; got {value}")
+    return value
+
+
+def _load_trial(spec: str, source: str) -> Callable:
+    """The function named by [study] trial: importing its module runs that module's code."""
     target = BUILTIN_TRIALS.get(spec, spec)
     module, sep, name = target.partition(":")
-    if not sep or not module or not name:
+    if not (sep and name.isidentifier()
+            and module and all(part.isidentifier() for part in module.split("."))):
         raise ConfigError(f"{source}: [study] trial must be one of {sorted(BUILTIN_TRIALS)} or "
                           f"'package.module:function'; got {spec!r}")
     try:
         fn = getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError) as exc:
-        raise ConfigError(f"{source}: [study] trial {spec!r} cannot be imported: {exc}") from None
-    if not callable(fn):
-        raise ConfigError(f"{source}: [study] trial {spec!r} is not a function")
+    except Exception as exc:  # noqa: BLE001 - any failure of the user's module is reported
+        raise ConfigError(f"{source}: [study] trial {spec!r} cannot be imported: "
+                          f"{type(exc).__name__}: {exc}") from None
+    if not inspect.isfunction(fn):
+        raise ConfigError(f"{source}: [study] trial {spec!r} is not a Python function "
+                          f"(def ...(settings, *, rng)); got {type(fn).__name__}")
     return fn
 
 
 def load_study_config(path: str | Path, overrides: dict | None = None) -> dict[str, Any]:
     """Validated study settings: ``{"study": {...}, "grid": {...}, "fixed": {...}, "trial": fn}``.
 
-    [study] is validated by :mod:`olsbayes.config`; [grid] and [fixed] are free
-    tables checked by :func:`olsbayes.studies.run_study`'s own rules.
+    The file is read like every configuration file (:func:`olsbayes.config.load_config`:
+    regular files of bounded size only); [study] is validated by its schema,
+    relative paths resolved against the file's folder; [grid] and [fixed] are
+    free tables checked by :func:`olsbayes.studies.run_study` against what the
+    trial accepts.
     """
-    p = Path(path)
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"config {str(p)!r} cannot be read: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: malformed TOML: {exc}") from None
-    for key, value in (overrides or {}).items():
-        sec, _, name = key.partition(".")
-        doc.setdefault(sec, {})[name] = value
-    for name, table in doc.items():
-        if name not in _TABLES or not isinstance(table, dict):
-            raise ConfigError(f"{p}: unknown section or key {name!r}; accepted sections: "
-                              f"{', '.join(f'[{t}]' for t in _TABLES)}")
-    study = parse_config("", ("study",), required=("study",), source=str(p),
-                         base_dir=p.resolve().parent,
-                         overrides={f"study.{k}": v for k, v in doc.get("study", {}).items()})
-    return {"study": dict(study.section("study")), "grid": doc.get("grid", {}),
-            "fixed": doc.get("fixed", {}),
-            "trial": _load_trial(study.section("study")["trial"], str(p))}
+    cfg = load_config(path, _TABLES, required=("study",), overrides=overrides or {})
+    study = dict(cfg.section("study"))
+    return {"study": study, "grid": dict(cfg.get("grid") or {}),
+            "fixed": dict(cfg.get("fixed") or {}), "trial": _load_trial(study["trial"], cfg.source)}
 
 
 def _summary(ds) -> tuple[list[str], list[list[Any]]]:
@@ -181,11 +195,13 @@ def run(args: argparse.Namespace) -> int:
     if ckpt is not None and Path(ckpt).exists() and not args.resume:
         raise InputError(f"checkpoint {str(ckpt)!r} exists: pass --resume to continue that "
                          "study, or delete the file to start afresh")
+    workers = args.workers if args.workers is not None else s.get("workers")
     try:
         ds = run_study(cfg["trial"], cfg["grid"], s["n_trials"], fixed=cfg["fixed"],
-                       executor=executor, workers=args.workers or s.get("workers"),
-                       scheduler=scheduler, checkpoint=ckpt, out=out, rng=s.get("seed"),
-                       chunk_size=s.get("chunk_size"), progress=not args.no_progress)
+                       executor=executor, workers=workers, scheduler=scheduler,
+                       checkpoint=ckpt, out=out, rng=s.get("seed"),
+                       chunk_size=s.get("chunk_size"), progress=not args.no_progress,
+                       max_memory_gb=s.get("max_memory_gb"))
     except InputError as exc:
         raise ConfigError(f"{args.config}: {exc}") from None
     header, rows = _summary(ds)

@@ -98,6 +98,9 @@ class Section:
         For each value of ``variant_key``, the keys accepted besides ``common``.
     common : tuple of str
         Keys accepted for every variant (``variant_key`` is always accepted).
+    free : bool
+        A table of free keys (``fields`` empty), returned as TOML gave it for its
+        consumer to check, e.g. the setting axes of a study's ``[grid]``.
     """
 
     name: str
@@ -106,6 +109,7 @@ class Section:
     variant_key: str | None = None
     variants: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     common: tuple[str, ...] = ()
+    free: bool = False
 
     def accepted(self, variant: str | None = None) -> tuple[str, ...]:
         """Keys accepted for ``variant`` (all keys when the section has no variants)."""
@@ -286,6 +290,8 @@ def validate_section(sec: Section, table: Any, base: Path) -> dict[str, Any]:
     """Check one TOML table against ``sec``; defaults filled in, values converted."""
     if not isinstance(table, dict):
         raise ConfigError(f"[{sec.name}] must be a table; got {_short(table)}")
+    if sec.free:
+        return dict(table)
     variant = None
     if sec.variant_key is not None:
         if sec.variant_key not in table:

@@ -19,6 +19,7 @@ from ._work import trial_settings, vectorized
 from .checkpoint import Checkpoint
 from .estimator_spec import ESTIMATORS, Estimator, as_estimator
 from .executors import EXECUTORS, make_backend
+from .grid import Setting
 from .runner import run_study, trial_name
 from .seeds import study_entropy, trial_seed
 
@@ -26,6 +27,7 @@ __all__ = [
     "run_study",
     "vectorized",
     "trial_settings",
+    "Setting",
     "Estimator",
     "as_estimator",
     "ESTIMATORS",

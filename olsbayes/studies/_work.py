@@ -55,12 +55,15 @@ def trial_settings(*names: str, **parsers: Callable[[object, str], object]) -> C
     Parameters
     ----------
     *names : str
-        Settings read as plain numbers, strings or bools.
+        Settings read as plain numbers, strings or bools, unchecked.
     **parsers : callable
         Settings with a parser ``parser(value, where) -> value`` that validates a
         grid or fixed value (``where`` names it in errors, e.g.
         ``"grid['estimator'][1]"``) and returns a scalar or a record with a
-        canonical ``label`` and ``to_json()``, such as
+        canonical ``label`` and ``to_json()``: a
+        :class:`~olsbayes.studies.grid.Setting` (kind and range, e.g.
+        ``n_sensors=Setting("int", 3, 10_000)``, so that a value that would make
+        a trial allocate without bound is refused up front), or a parser such as
         :func:`~olsbayes.studies.estimator_spec.as_estimator`.
 
     Returns

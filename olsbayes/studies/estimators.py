@@ -33,7 +33,9 @@ from ..geometry import Ring
 from ..model import Model
 from ._work import trial_settings, vectorized
 from .estimator_spec import Estimator, as_estimator
+from .grid import Setting
 from .scoring import ring_truth, score
+from .trials import RING_SETTINGS
 
 __all__ = ["ring_estimate", "OUTPUT_NAMES"]
 
@@ -180,8 +182,9 @@ def _timed_estimates(model: Model, data: np.ndarray, k: int, est: Estimator, set
 
 
 @vectorized
-@trial_settings("n_sensors", "sigma", "n_sources", "intensity", "separation", "slots", "kink",
-                "i_max", "select", estimator=as_estimator)
+@trial_settings(**RING_SETTINGS, slots=Setting("int", 1, 10_000), kink=Setting("bool"),
+                i_max=Setting("float", high=1e12, positive=True), select=Setting("bool"),
+                estimator=as_estimator)
 def ring_estimate(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
     """Simulate one ring scene per rng, estimate it with ``settings["estimator"]``, score it.
 

@@ -10,8 +10,10 @@ spellings into records through the parsers it declares with
 
 from __future__ import annotations
 
+import difflib
 import itertools
 import json
+import math
 import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -24,6 +26,7 @@ from ..errors import InputError
 
 __all__ = [
     "Grid",
+    "Setting",
     "SettingRecord",
     "make_grid",
     "check_fixed",
@@ -64,6 +67,57 @@ def _scalar(name: str, value: object) -> Any:
             raise InputError(f"{name} must be finite; got {x!r}")
         return x
     raise InputError(f"{name} must be a number, a string or a bool; got {_short(value)}")
+
+
+@dataclass(frozen=True)
+class Setting:
+    """The kind and accepted range of one setting of a trial (see ``trial_settings``).
+
+    Calling it checks one grid or fixed value and returns it unchanged, so it
+    serves as that setting's parser.
+
+    Parameters
+    ----------
+    kind : {"int", "float", "bool", "str"}
+        Accepted type; "float" also accepts integers.
+    low, high : float, optional
+        Inclusive bounds of a number.
+    positive : bool
+        Require a number > 0.
+    """
+
+    kind: str
+    low: float | None = None
+    high: float | None = None
+    positive: bool = False
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("int", "float", "bool", "str"):
+            raise ValueError(f"Setting kind must be int, float, bool or str; got {self.kind!r}")
+
+    def describe(self) -> str:
+        """The accepted values in words, e.g. ``"an integer in [3, 10000]"``."""
+        if self.kind in ("bool", "str"):
+            return {"bool": "true or false", "str": "a string"}[self.kind]
+        lo = "(0" if self.positive and (self.low is None or self.low <= 0) else (
+            "(-inf" if self.low is None else f"[{self.low:g}")
+        hi = "inf)" if self.high is None else f"{self.high:g}]"
+        return f"{'an integer' if self.kind == 'int' else 'a number'} in {lo}, {hi}"
+
+    def __call__(self, value: object, where: str) -> Any:
+        """``value`` if it is of this kind and in range, else InputError naming ``where``."""
+        if isinstance(value, np.generic):
+            value = value.item()
+        kinds = {"int": numbers.Integral, "float": numbers.Real, "bool": bool, "str": str}
+        ok = isinstance(value, kinds[self.kind]) and (
+            self.kind == "bool" or not isinstance(value, bool))
+        if ok and self.kind in ("int", "float"):
+            x = float(value) if abs(value) < 1e300 else math.inf
+            ok = (math.isfinite(x) and (self.low is None or x >= self.low)
+                  and (self.high is None or x <= self.high) and (not self.positive or x > 0))
+        if not ok:
+            raise InputError(f"{where} must be {self.describe()}; got {_short(value)}")
+        return value
 
 
 def _value(where: str, value: object, parser: Callable | None) -> Any:
@@ -112,7 +166,7 @@ class Grid:
     @property
     def n_cells(self) -> int:
         """Number of setting combinations (1 for an empty grid)."""
-        return int(np.prod(self.shape, dtype=int))
+        return math.prod(self.shape)
 
     def cell(self, index: int) -> dict:
         """Settings of cell ``index`` (row-major order over the axes)."""
@@ -146,7 +200,7 @@ def make_grid(grid: object, parsers: Parsers | None = None) -> Grid:
     names, values = [], []
     for key, axis in grid.items():
         name = _check_name("grid axis", key)
-        if isinstance(axis, str | bytes) or not hasattr(axis, "__iter__"):
+        if isinstance(axis, str | bytes | Mapping) or not hasattr(axis, "__iter__"):
             raise InputError(f"grid[{name!r}] must be a list of values; got {_short(axis)}")
         items = np.asarray(axis).tolist() if isinstance(axis, np.ndarray) else list(axis)
         vals = tuple(_value(f"grid[{name!r}][{i}]", v, parsers.get(name))
@@ -184,7 +238,8 @@ def check_fixed(fixed: object, grid: Grid, parsers: Parsers | None = None) -> di
         if name in parsers:
             out[name] = _value(f"fixed[{name!r}]", value, parsers[name])
         elif isinstance(value, list | tuple | np.ndarray):
-            out[name] = [_scalar(f"fixed[{name!r}]", v) for v in np.asarray(value).tolist()]
+            items = value.tolist() if isinstance(value, np.ndarray) else value
+            out[name] = [_scalar(f"fixed[{name!r}][{i}]", v) for i, v in enumerate(items)]
         else:
             out[name] = _scalar(f"fixed[{name!r}]", value)
     json.dumps(settings_json(out))  # keeps the fingerprint well defined
@@ -197,5 +252,7 @@ def check_known(names: object, known: frozenset[str] | None, trial: str) -> None
         return
     for name in names:
         if name not in known:
-            raise InputError(f"setting {name!r} is not read by trial {trial}; accepted "
+            close = difflib.get_close_matches(name, sorted(known), n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise InputError(f"setting {name!r} is not read by trial {trial}; {hint}accepted "
                              f"settings: {', '.join(sorted(known))}")

@@ -8,21 +8,25 @@ import math
 import os
 import pickle
 import sys
+import tempfile
 import types
+import warnings
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .._io import atomic_path
-from .._validation import integer
+from .._io import atomic_path, ensure_dir
+from .._validation import _short, integer
 from .._version import __version__
 from ..errors import InputError
 from ._work import check_signature, declared_settings, is_vectorized, run_chunk
-from .checkpoint import Checkpoint, ChunkRecord, fingerprint_key
+from .checkpoint import Checkpoint, ChunkRecord, fingerprint_key, recorded_seed
 from .executors import make_backend
 from .grid import Grid, check_fixed, check_known, make_grid, settings_json
+from .results import Results, check_budget, memory_limit
 from .seeds import study_entropy
 
 __all__ = ["run_study", "trial_name"]
@@ -61,39 +65,6 @@ def _fingerprint(trial: Callable, grid: Grid, fixed: dict, n_trials: int, entrop
         "seed": str(entropy),
         "olsbayes_version": __version__,
     }
-
-
-def _remaining(records: list[ChunkRecord], n_cells: int, n_trials: int) -> list[np.ndarray]:
-    """Trial indices still to run, per cell; error on duplicates in the checkpoint."""
-    done = np.zeros((n_cells, n_trials), dtype=np.int64)
-    for rec in records:
-        np.add.at(done[rec.cell], rec.trials, 1)
-    if np.any(done > 1):
-        cell, t = np.argwhere(done > 1)[0]
-        raise InputError(f"checkpoint holds trial {t} of cell {cell} twice; it is corrupt")
-    return [np.flatnonzero(done[c] == 0) for c in range(n_cells)]
-
-
-def _chunks(todo: list[np.ndarray], size: int) -> list[tuple[int, np.ndarray]]:
-    return [(c, idx[i:i + size]) for c, idx in enumerate(todo) for i in range(0, len(idx), size)]
-
-
-def _assemble(records: list[ChunkRecord], grid: Grid, n_trials: int) -> dict[str, np.ndarray]:
-    """Place every record's results at (cell, trial) in full arrays."""
-    first = records[0].values
-    shape = grid.shape + (n_trials,)
-    full = {k: np.zeros(shape + v.shape[1:], dtype=v.dtype) for k, v in first.items()}
-    for rec in records:
-        if set(rec.values) != set(first):
-            raise InputError("trial outputs must have the same names in every cell and chunk; "
-                             f"got {sorted(first)} vs {sorted(rec.values)}")
-        pos = np.unravel_index(rec.cell, grid.shape) if grid.names else ()
-        for name, arr in rec.values.items():
-            if arr.shape[1:] != first[name].shape[1:]:
-                raise InputError(f"trial output {name!r} must have the same shape in every cell "
-                                 f"and chunk; got {first[name].shape[1:]} vs {arr.shape[1:]}")
-            full[name][pos + (rec.trials,)] = arr
-    return full
 
 
 def _dataset(full: dict, grid: Grid, fingerprint: dict) -> Any:
@@ -141,6 +112,44 @@ def _check_picklable(trial: Callable, backend_name: str) -> None:
         ) from None
 
 
+@dataclass(frozen=True)
+class _Study:
+    """What every chunk needs: the trial, its settings, the seed and the study's size."""
+
+    trial: Callable
+    grid: Grid
+    fixed: dict
+    n_trials: int
+    entropy: int
+
+
+def _writable(path: object, name: str) -> Path:
+    """``path`` as a Path, refused before any work if a file cannot be written there.
+
+    Creates the file's folder if needed, and checks by creating (and removing) a
+    temporary file in it that a file can be written there.
+    """
+    try:
+        p = Path(path)  # type: ignore[arg-type]
+        if "\0" in str(p) or not str(p):
+            raise ValueError("empty, or holds a NUL byte")
+        is_dir, exists, is_file = p.is_dir(), p.exists(), p.is_file()
+    except (TypeError, ValueError, OSError) as exc:
+        raise InputError(f"{name} must be a file path; got {_short(path)} ({exc})") from None
+    if is_dir:
+        raise InputError(f"{name} {str(p)!r} is a folder; give a file name")
+    if exists and not is_file:
+        raise InputError(f"{name} {str(p)!r} is not a regular file (a device, FIFO or "
+                         "socket); give a file name")
+    folder = ensure_dir(p.parent, f"folder of {name}")
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise InputError(f"{name} {str(p)!r} cannot be written: {exc.strerror or exc}") from None
+    return p
+
+
 def run_study(
     trial: Callable,
     grid: Mapping,
@@ -155,6 +164,7 @@ def run_study(
     rng: object = None,
     chunk_size: int | None = None,
     progress: bool = True,
+    max_memory_gb: float | None = None,
 ) -> Any:
     """Run ``n_trials`` Monte Carlo trials at every point of ``grid``.
 
@@ -166,7 +176,8 @@ def run_study(
         ``trial(settings, *, rngs) -> {name: array (T, ...)}`` for a chunk of T trials.
         ``settings`` is ``{**fixed, **cell}``.  A trial that declares its settings
         with :func:`olsbayes.studies.trial_settings` gets other settings refused and
-        its parsed settings (e.g. ``estimator``) checked here, before any trial runs.
+        its parsed settings (e.g. ``estimator``, ranges) checked here, before any
+        trial runs.
     grid : dict
         ``{axis name: list of values}`` (numbers, strings, bools or records such as
         :class:`~olsbayes.studies.Estimator`, whose ``label`` becomes the
@@ -179,16 +190,19 @@ def run_study(
         ``"processes"`` (default), ``"serial"``, ``"threads"``, ``"dask"`` or an object;
         see :func:`olsbayes.studies.executors.make_backend`.
     workers : int, optional
-        Local pool size (default: usable cores).
+        Local pool size (>= 1; default: usable cores).
     scheduler : str, optional
         Dask scheduler address, with ``executor="dask"``.
     checkpoint : path, optional
-        Append-only checkpoint; an existing one made with the same settings is
-        resumed (its recorded seed is used when ``rng`` is None), one made with
-        other settings is refused with :class:`~olsbayes.errors.InputError`, and
-        so is one that another running study holds (file lock).
+        Append-only checkpoint (created with its folder if absent); one made with
+        the same settings is resumed (its recorded seed is used when ``rng`` is
+        None), one made with other settings is refused with
+        :class:`~olsbayes.errors.InputError`, and so is one that another running
+        study holds (file lock).  Damaged frames are skipped with a warning and
+        their trials run again.
     out : path, optional
-        Write the dataset there as NetCDF (atomic write).
+        Write the dataset there as NetCDF (atomic write); checked before any
+        trial runs.
     rng : int, SeedSequence, Generator or None
         Root seed. Trial t of cell c uses ``SeedSequence(seed, spawn_key=(c, t))``,
         so results do not depend on the executor, workers or ``chunk_size``.
@@ -198,6 +212,11 @@ def run_study(
         at most 1000 trials each.
     progress : bool
         Show a tqdm bar over trials (on stderr).
+    max_memory_gb : float, optional
+        Memory budget (GB) of the result arrays (default: half the physical
+        memory, at most 4 GB).  A study that needs more is refused before any
+        trial runs when even one number per trial would not fit, else as soon
+        as the first chunk tells the size of a trial's outputs.
 
     Returns
     -------
@@ -216,81 +235,100 @@ def run_study(
     n_trials = integer("n_trials", n_trials, low=1)
     if chunk_size is not None:
         chunk_size = integer("chunk_size", chunk_size, low=1)
+    if workers is not None:
+        workers = integer("workers", workers, low=1)
     if not isinstance(progress, bool):
         raise InputError(f"progress must be True or False; got {progress!r}")
-    if rng is None and checkpoint is not None and Path(checkpoint).is_file():
-        rng = _seed_of(Path(checkpoint))
-    entropy = study_entropy(rng)
-    fp = _fingerprint(trial, g, fixed_s, n_trials, entropy)
-    records: list[ChunkRecord] = []
-    ckpt = Checkpoint.open(checkpoint, fp) if checkpoint is not None else None
+    limit = memory_limit(max_memory_gb)
+    check_budget(n_trials, g.n_cells, limit)
+    out = None if out is None else _writable(out, "out")
+    if checkpoint is not None:
+        checkpoint = _writable(checkpoint, "checkpoint")
+        if rng is None:
+            rng = recorded_seed(checkpoint)
+    study = _Study(trial, g, fixed_s, n_trials, study_entropy(rng))
+    fp = _fingerprint(trial, g, fixed_s, n_trials, study.entropy)
+    results = Results(g.n_cells, n_trials, limit)
+    ckpt = Checkpoint.open(checkpoint, fp, max_bytes=limit) if checkpoint is not None else None
     try:  # the checkpoint stays locked against a second study until this one ends
         if ckpt is not None:
-            records = ckpt.records
-        todo = _remaining(records, g.n_cells, n_trials)
-        if any(len(t) for t in todo):
-            records = _execute(trial, g, fixed_s, n_trials, entropy, todo, ckpt, records,
-                               executor, workers, scheduler, chunk_size, progress)
+            _resume(ckpt, results, g)
+        if results.n_todo:
+            _execute(study, results, ckpt, (executor, workers, scheduler), chunk_size, progress)
     finally:
         if ckpt is not None:
             ckpt.close()
-    ds = _dataset(_assemble(records, g, n_trials), g, fp)
+    shape = g.shape + (n_trials,)
+    full = {k: v.reshape(shape + v.shape[2:]) for k, v in results.arrays.items()}
+    ds = _dataset(full, g, fp)
     if out is not None:
         with atomic_path(out) as tmp:
             ds.to_netcdf(tmp, engine="h5netcdf")
     return ds
 
 
-def _seed_of(path: Path) -> object:
-    """The seed recorded in a checkpoint header (None if unreadable; Checkpoint.open reports)."""
-    from .checkpoint import _read_frames
+def _resume(ckpt: Checkpoint, results: Results, g: Grid) -> None:
+    """Take the checkpoint's chunks; warn about the trials of damaged frames."""
+    for rec in ckpt.records:
+        results.add(rec)
+    ckpt.records.clear()
+    if ckpt.damaged:
+        where = ", ".join(f"{a}-{b}" for a, b in ckpt.damaged)
+        cells = results.missing(lambda c: ", ".join(
+            f"{k}={getattr(v, 'label', v)}" for k, v in g.cell(c).items()) or "the study")
+        warnings.warn(f"checkpoint {str(ckpt.path)!r}: skipped damaged frames at bytes "
+                      f"{where}; the trials they held are among those not in the checkpoint, "
+                      f"which run again: {cells}", RuntimeWarning, stacklevel=3)
 
-    try:
-        frames, _, _ = _read_frames(path)
-        return int(json.loads(frames[0][1])["fingerprint"]["seed"])
-    except (OSError, IndexError, KeyError, ValueError, InputError):
-        return None
 
-
-def _execute(trial, g, fixed_s, n_trials, entropy, todo, ckpt, records, executor, workers,
-             scheduler, chunk_size, progress) -> list[ChunkRecord]:
+def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tuple,
+             chunk_size: int | None, progress: bool) -> None:
+    """Run every trial not done, on the backend of ``where`` = (executor, workers, scheduler)."""
     from tqdm.auto import tqdm
 
-    records = list(records)
-    total = g.n_cells * n_trials
-    n_todo = int(sum(len(t) for t in todo))
+    total = study.grid.n_cells * study.n_trials
+    n_todo = results.n_todo
+    executor, workers, scheduler = where
     backend = make_backend(executor, workers=workers, scheduler=scheduler)
     try:
-        _check_picklable(trial, backend.name)
-        size = chunk_size or max(1, min(1000, n_trials,
+        _check_picklable(study.trial, backend.name)
+        size = chunk_size or max(1, min(1000, study.n_trials,
                                         math.ceil(n_todo / (backend.chunks_per_worker
                                                             * backend.n_workers))))
-        queue = _chunks(todo, size)[::-1]
+        queue = results.todo(size)
         window = max(2, 2 * backend.n_workers)
         pending: list = []
-        where: dict[int, tuple[int, np.ndarray]] = {}  # id(future) -> (cell, trials)
+        chunks: dict[int, tuple[int, np.ndarray]] = {}  # id(future) -> (cell, trials)
         with tqdm(total=total, initial=total - n_todo, unit="trial", disable=not progress,
                   desc=f"study ({backend.name})", dynamic_ncols=True) as bar:
-            while queue or pending:
-                while queue and len(pending) < window:
-                    cell, idx = queue.pop()
-                    fut = backend.submit(run_chunk, trial, {**fixed_s, **g.cell(cell)},
-                                         entropy, cell, idx)
-                    where[id(fut)] = (cell, idx)
+            nxt = next(queue, None)
+            while nxt is not None or pending:
+                while nxt is not None and len(pending) < window:
+                    cell, idx = nxt
+                    fut = backend.submit(run_chunk, study.trial,
+                                         {**study.fixed, **study.grid.cell(cell)},
+                                         study.entropy, cell, idx)
+                    chunks[id(fut)] = (cell, idx)
                     pending.append(fut)
+                    nxt = next(queue, None)
                 done, pending = backend.wait_first(pending)
                 for fut in done:
-                    records.append(_collect(fut, where.pop(id(fut)), g, ckpt, pending))
-                    bar.update(len(records[-1].trials))
+                    bar.update(_collect(fut, chunks.pop(id(fut)), study.grid, ckpt, results,
+                                        pending))
     finally:
         backend.close()
-    return records
 
 
 def _collect(fut: Any, chunk: tuple[int, np.ndarray], g: Grid, ckpt: Checkpoint | None,
-             pending: list) -> ChunkRecord:
+             results: Results, pending: list) -> int:
+    """Check, checkpoint and store one finished chunk; return its number of trials."""
     try:
         cell, idx, values = fut.result()
+        rec = ChunkRecord(int(cell), np.asarray(idx), values)
+        results.check(rec)  # a chunk unlike the others never reaches the checkpoint
+        if ckpt is not None:
+            ckpt.append(cell, idx, values)
+        results.add(rec)
     except Exception as exc:
         for other in pending:
             other.cancel()
@@ -299,6 +337,4 @@ def _collect(fut: Any, chunk: tuple[int, np.ndarray], g: Grid, ckpt: Checkpoint 
             exc.add_note(f"olsbayes study: in trials {idx[0]}..{idx[-1]} of cell {cell} "
                          f"(settings {g.cell(cell)})")
         raise
-    if ckpt is not None:
-        ckpt.append(cell, idx, values)
-    return ChunkRecord(int(cell), np.asarray(idx), values)
+    return len(idx)

@@ -12,8 +12,18 @@ import numpy as np
 from ..geometry import Ring
 from ..model import Model
 from ._work import trial_settings, vectorized
+from .grid import Setting
 
-__all__ = ["ring_scene", "noise_check", "noise_check_batch"]
+__all__ = ["ring_scene", "noise_check", "noise_check_batch", "RING_SETTINGS"]
+
+#: Settings of a ring scene and their accepted ranges (checked before a study runs).
+RING_SETTINGS = {
+    "n_sensors": Setting("int", 3, 10_000),
+    "sigma": Setting("float", high=1e6, positive=True),
+    "n_sources": Setting("int", 1, 5_000),
+    "separation": Setting("float", -1e3, 1e3),
+    "intensity": Setting("float", 0, 1e12),
+}
 
 
 def ring_scene(settings: dict, *, rng: np.random.Generator) -> np.ndarray:
@@ -37,10 +47,7 @@ def _ring_model(settings: dict) -> Model:
     return Model(Ring(int(settings["n_sensors"])), float(settings["sigma"]))
 
 
-_SETTINGS = ("n_sensors", "sigma", "n_sources", "separation", "intensity")
-
-
-@trial_settings(*_SETTINGS)
+@trial_settings(**RING_SETTINGS)
 def noise_check(settings: dict, *, rng: np.random.Generator) -> dict:
     """Simulate one ring scene and measure its noise: chi2 of the truth (~ chi2_N).
 
@@ -58,7 +65,7 @@ def noise_check(settings: dict, *, rng: np.random.Generator) -> dict:
 
 
 @vectorized
-@trial_settings(*_SETTINGS)
+@trial_settings(**RING_SETTINGS)
 def noise_check_batch(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
     """Vectorised :func:`noise_check`: the same numbers, one batched model call."""
     model = _ring_model(settings)

@@ -17,7 +17,8 @@ import xarray as xr
 
 from olsbayes import InputError
 from olsbayes.studies import run_study, trial_seed, vectorized
-from olsbayes.studies.checkpoint import _decode_chunk, _read_frames
+from olsbayes.studies._frames import scan
+from olsbayes.studies.checkpoint import read_chunks
 from olsbayes.studies.trials import noise_check, noise_check_batch
 
 GRID = {"sigma": [0.01, 0.1], "n_sensors": [8, 16]}
@@ -125,10 +126,12 @@ def test_bad_inputs_are_refused_with_the_argument_named(tmp_path):
     cases = [
         (dict(grid=[1, 2]), "grid must be a dict"),
         (dict(grid={"sigma": []}), "at least one value"),
-        (dict(grid={"sigma": [0.1, "a"]}), "mixes value types"),
+        (dict(grid={"sigma": [0.1, "a"]}), r"grid\['sigma'\]\[1\] must be a number in"),
+        (dict(trial=const_one, grid={"a": [0.1, "a"]}), "mixes value types"),
         (dict(grid={"sigma": [0.1, 0.1]}), "repeated values"),
         (dict(grid={"trial": [1]}), "identifiers other than"),
-        (dict(grid={"sigma": [float("nan")]}), "finite"),
+        (dict(trial=const_one, grid={"a": [float("nan")]}), "finite"),
+        (dict(grid={"sigma": [float("nan")]}), r"must be a number in \(0, 1e\+06\]; got nan"),
         (dict(n_trials=0), "n_trials must be in"),
         (dict(chunk_size=0), "chunk_size must be in"),
         (dict(executor="gpu"), "executor must be one of"),
@@ -159,8 +162,7 @@ def test_trial_error_propagates_and_finished_chunks_stay_checkpointed(tmp_path):
         run_study(fails_on_cell, {"sigma": [0.01, 0.1]}, 6, executor="serial", chunk_size=3,
                   checkpoint=ckpt, rng=2, progress=False)
     assert "cell 1" in "".join(getattr(info.value, "__notes__", []))
-    frames, _, _ = _read_frames(ckpt)
-    assert sorted(int(_decode_chunk(p).cell) for k, p in frames[1:]) == [0, 0]
+    assert sorted(rec.cell for rec in read_chunks(ckpt)) == [0, 0]
     with pytest.raises(ZeroDivisionError):  # lock released on error: the rerun resumes
         run_study(fails_on_cell, {"sigma": [0.01, 0.1]}, 6, executor="serial", chunk_size=3,
                   checkpoint=ckpt, rng=2, progress=False)
@@ -171,7 +173,7 @@ def test_checkpoint_held_by_a_running_study_is_refused(tmp_path):
     with pytest.raises(InputError, match="in use by another running study"):
         run_study(reenters, {}, 1, fixed={"ckpt": str(ckpt)}, executor="serial", rng=1,
                   checkpoint=ckpt, progress=False)
-    assert len(_read_frames(ckpt)[0]) == 1  # header only: the second study wrote nothing
+    assert read_chunks(ckpt) == []  # header only: the second study wrote nothing
 
 
 def test_checkpoint_from_other_settings_is_refused(tmp_path):
@@ -209,9 +211,8 @@ def test_torn_last_chunk_is_dropped_and_rerun(tmp_path):
     ckpt = tmp_path / "c.ckpt"
     ref = _serial(checkpoint=ckpt, chunk_size=8)
     data = ckpt.read_bytes()
-    frames, end, _ = _read_frames(ckpt)
-    last = len(frames[-1][1]) + 17
-    ckpt.write_bytes(data[: end - last // 2])  # half of the last frame survives
+    last = scan(data).frames[-1]
+    ckpt.write_bytes(data[: last[0] + len(last[2]) // 2])  # half of the last frame survives
     with pytest.warns(RuntimeWarning, match="torn last chunk"):
         assert _serial(checkpoint=ckpt, chunk_size=5).identical(ref)
 
@@ -236,10 +237,8 @@ SCRIPT = textwrap.dedent(
 
 
 def _count_trials(ckpt: Path) -> np.ndarray:
-    frames, _, _ = _read_frames(ckpt)
     counts = np.zeros((4, 30), int)
-    for _, payload in frames[1:]:
-        rec = _decode_chunk(payload)
+    for rec in read_chunks(ckpt):
         np.add.at(counts[rec.cell], rec.trials, 1)
     return counts
 
