@@ -122,7 +122,7 @@ def throughput(n: int, repeats: int) -> tuple[dict, list, dict]:
     ctx = multiprocessing.get_context("forkserver")
     with cf.ProcessPoolExecutor(2, mp_context=ctx) as pool, \
             LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                         dashboard_address=None) as cluster, Client(cluster) as client:
+                         dashboard_address=":0") as cluster, Client(cluster) as client:
         study("serial", 8)  # imports and caches outside the clock
         pids = _warm_workers(pool, client)
         study(pool, 8, chunk_size=4)

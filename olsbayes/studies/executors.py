@@ -154,7 +154,7 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
             raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
         return _dask_backend(client, client.close)
     cluster = LocalCluster(n_workers=_local_workers(workers), threads_per_worker=1,
-                           processes=True, dashboard_address=None)
+                           processes=True, dashboard_address=":0")
     client = Client(cluster)
 
     def closer() -> None:

@@ -82,7 +82,7 @@ def test_same_numbers_on_every_executor_worker_count_and_chunking():
         assert pool.submit(int, 1).result() == 1  # a user's executor is left running
     assert threads.identical(ref)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=":0") as cluster, Client(cluster) as client:
         dask = run_study(noise_check, GRID, 24, executor=client, rng=7, chunk_size=7,
                          progress=False)
         by_address = run_study(noise_check, GRID, 24, executor="dask", rng=7,
