@@ -8,7 +8,8 @@ cache folder, then at a temporary folder (one warning: the cache may not last),
 and, with no writable folder at all, turns saving off (one warning: every
 process compiles again).  It also prints one line on stderr the first time in a
 process that one of the package's kernels is compiled rather than loaded, since
-that takes tens of seconds (``olsbayes compile`` does it ahead of time).
+compiling takes far longer than loading (``olsbayes compile`` does it ahead of
+time).
 """
 
 from __future__ import annotations
@@ -118,8 +119,8 @@ def prepare() -> None:
             if not _STATE["said"]:
                 _STATE["said"] = True
                 print("olsbayes: compiling numerical kernels for their first use on this "
-                      "machine (a minute or two, once; `olsbayes compile` does it ahead of "
-                      "time) ...", file=sys.stderr, flush=True)
+                      "machine (once; `olsbayes compile` does it ahead of time) ...",
+                      file=sys.stderr, flush=True)
 
         def on_end(self, ev) -> None:
             pass

@@ -1,9 +1,9 @@
 """Compile the numerical kernels now: once per machine, instead of at their first use.
 
 The package's small numerical kernels are compiled with numba the first time
-they run and cached on disk; later processes load them in a fraction of a
-second.  Run this once after installing (or when building a container image) so
-that no later command pays the compilation.  Prints where the cache lives.
+they run and cached on disk; later processes only load them.  Run this once
+after installing (or when building a container image) so that no later command
+pays the compilation.  Prints where the cache lives.
 
 Example:
   olsbayes compile
@@ -39,8 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from ..ml.warmup import compile_kernels
 
     how, folder = cache_location()
-    print("olsbayes: compiling numerical kernels (a minute or two the first time on a "
-          "machine; seconds once cached) ...", file=sys.stderr, flush=True)
+    print("olsbayes: compiling numerical kernels (once per machine; later runs load them "
+          "from the cache) ...", file=sys.stderr, flush=True)
     announced()
     cpu0, wall0 = time.process_time(), time.perf_counter()
 
