@@ -191,7 +191,7 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="paper-size run")
     ap.add_argument("--out", type=Path, default=Path("out/study_throughput"))
     args = ap.parse_args()
-    n, reps = (480, 5) if args.full else (160, 5)
+    n, reps = (20000, 5) if args.full else (4000, 3)
     load0 = os.getloadavg()[0]
     start = pool_start()  # first: it times the first pool of this process
     rates, rounds, per_task = throughput(n, reps)
