@@ -137,24 +137,25 @@ def goals(rounds: int) -> list[str]:
         ml = fit_ml(model, data, k)
         log_prob = plain_log_posterior(model, data, float(prior.upper[1]))
         best = {}
-        for r in range(rounds):
+        for _ in range(rounds):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ConvergenceWarning)
                 CPU.update(loop=0.0, rhat=0.0)
                 t0 = time.process_time()
-                res = sample(model, data, k, priors=prior, start=ml, rng=r, progress=False)
+                # the same seed every round: the same run, so its best round is comparable
+                res = sample(model, data, k, priors=prior, start=ml, rng=k, progress=False)
                 call = time.process_time() - t0
                 ess = float(res.summary()["ess_bulk"].min())
                 n = res.n_steps
                 row = {"steps": n, "call": call, "loop": CPU["loop"], "rhat": CPU["rhat"],
                        "ess": ess, "converged": res.converged}
                 t0 = time.process_time()
-                sample(model, data, k, priors=prior, start=ml, rng=r, progress=False,
+                sample(model, data, k, priors=prior, start=ml, rng=k, progress=False,
                        options=SamplerOptions(n_steps=n))
                 row["fixed"] = time.process_time() - t0
-            gen = np.random.default_rng(r)
-            _, row["plain_de"] = _plain_run(log_prob, ml.params, n, emcee.moves.DEMove(), r, gen)
-            stretch, row["plain_stretch"] = _plain_run(log_prob, ml.params, n, None, r, gen)
+            gen = np.random.default_rng(k)
+            _, row["plain_de"] = _plain_run(log_prob, ml.params, n, emcee.moves.DEMove(), k, gen)
+            stretch, row["plain_stretch"] = _plain_run(log_prob, ml.params, n, None, k, gen)
             row["plain_ess"] = _min_bulk_ess(stretch)
             for key, value in row.items():  # best (least loaded) round per quantity
                 if key in ("ess", "plain_ess", "steps", "converged"):
