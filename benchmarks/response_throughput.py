@@ -1,5 +1,12 @@
 """Throughput of the batched Eq. 1 kernel against numpy multiply-add, in one run.
 
+Second part: one parameter vector at a time (user loops, per-walker samplers,
+scipy optimisers).  ``Model.log_likelihood``, ``response`` and ``jacobian`` on
+one vector against a plain numpy implementation of Eq. 1 written for that one
+case (ring: ``I @ max(cos(theta_k - theta_n), 0)``; sphere: unit vectors, then
+``I @ max(u n^T, 0)``), timed interleaved in CPU time (best of many rounds);
+goal: ratio <= 1.5.
+
 For each case (array, number of sources K, batch size W) it times
 
 * ``Model.response(x)`` with ``x`` of shape (W, K * (d + 1)),
@@ -15,7 +22,7 @@ cost of a multiply-add each): with few sub-sensors (ring N = 30) it caps the rat
 
 Usage::
 
-    python benchmarks/response_throughput.py            # quick (~20 s)
+    python benchmarks/response_throughput.py            # quick (~40 s)
     python benchmarks/response_throughput.py --full     # more cases and repeats
     python benchmarks/response_throughput.py --out out/response_throughput
 """
@@ -89,6 +96,83 @@ def cases(full: bool) -> list[tuple[str, Model, int, int]]:
     return out
 
 
+def plain_numpy(model: Model, x: np.ndarray, data: np.ndarray) -> dict:
+    """Plain numpy Eq. 1 for one vector ``x`` of this model: {name: callable}."""
+    k, s2 = x.size // (model.n_loc + 1), model.sigma**2
+    const = model.n_sensors * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
+    if model.kind == "angle":
+        th_n = np.arctan2(model.array.normals[:, 1], model.array.normals[:, 0])
+
+        def response(x):
+            return x[1::2] @ np.maximum(np.cos(x[0::2, None] - th_n), 0.0)
+
+        def jacobian(x):
+            d = x[0::2, None] - th_n
+            c = np.cos(d)
+            jac = np.empty((th_n.size, x.size))
+            jac[:, 0::2] = (x[1::2, None] * np.where(c > 0, -np.sin(d), 0.0)).T
+            jac[:, 1::2] = np.maximum(c, 0.0).T
+            return jac
+    else:
+        nrm = model.array.normals
+
+        def response(x):
+            lon, lat, inten = x[0::3], x[1::3], x[2::3]
+            u = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], 1)
+            return inten @ np.maximum(u @ nrm.T, 0.0)
+
+        jacobian = None
+
+    def log_likelihood(x):
+        r = data - response(x)
+        return -0.5 * (r @ r) / s2 - const
+
+    out = {"log_likelihood": log_likelihood, "response": response, "jacobian": jacobian}
+    assert k >= 1 and np.isclose(log_likelihood(x), model.log_likelihood(x, data))
+    return out
+
+
+def best_cpu(fns: dict, rounds: int, calls: int = 200) -> dict:
+    """Best CPU seconds per call of each callable, the callables interleaved per round."""
+    best = dict.fromkeys(fns, np.inf)
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            t0 = time.process_time()
+            for _ in range(calls):
+                fn()
+            best[name] = min(best[name], (time.process_time() - t0) / calls)
+    return best
+
+
+def single_vector(rounds: int, rng: np.random.Generator) -> list[str]:
+    """Goal table: one-vector calls against plain numpy (ratios <= 1.5 met)."""
+    ring30, sphere = Model(Ring(30), 0.01), Model(Sphere.grid(15, 20), 0.01)
+    cases = [("ring N=30 K=1", ring30, 1), ("ring N=30 K=2", ring30, 2),
+             ("ring N=30 K=3", ring30, 3), ("sphere N=300 K=2", sphere, 2)]
+    header = (f"{'one vector':20s} {'call':15s} {'olsbayes us':>11s} {'numpy us':>9s} "
+              f"{'ratio':>6s}  goal <= 1.5")
+    lines = [header, "-" * len(header)]
+    for name, model, k in cases:
+        x = random_params(model, k, 1, rng)[0]
+        data = model.simulate(x, rng=rng)
+        plain = plain_numpy(model, x, data)
+        ours = {"log_likelihood": lambda: model.log_likelihood(x, data),
+                "response": lambda: model.response(x), "jacobian": lambda: model.jacobian(x)}
+        fns = {}
+        for call, fn in ours.items():
+            if plain[call] is not None:
+                fns[("ours", call)] = fn
+                fns[("numpy", call)] = (lambda f=plain[call]: f(x))
+        best = best_cpu(fns, rounds)
+        for call in ours:
+            if ("numpy", call) not in best:
+                continue
+            a, b = best[("ours", call)], best[("numpy", call)]
+            lines.append(f"{name:20s} {call:15s} {a * 1e6:11.2f} {b * 1e6:9.2f} {a / b:6.2f}  "
+                         f"{'met' if a / b <= 1.5 else 'not met'}")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="more cases and repeats")
@@ -117,6 +201,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"{fma / 1e6:11.1f} {r_resp / fma:10.2f} {r_logl / fma:10.2f} {share:>10s}")
         lines.append(line)
         print(line, flush=True)
+    single = single_vector(100 if args.full else 40, rng)
+    print("\n".join(single), flush=True)
+    lines += [""] + single
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "throughput.txt").write_text("\n".join(lines) + "\n")
     print(f"table written to {args.out / 'throughput.txt'}")

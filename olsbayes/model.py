@@ -19,6 +19,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from ._frozen import Frozen
+from ._nearfield import near_gain, near_jacobian_t
 from ._validation import as_rng, finite_array, integer, positive_float
 from .circular import wrap_angle
 from .errors import InputError
@@ -31,6 +32,8 @@ __all__ = ["Model"]
 #: Sensor-source terms per block of the batched kernel: (block, K, N) float64
 #: intermediates of ~256 KiB stay in a core's L2 cache (see benchmarks/).
 BLOCK_TERMS = 32768
+
+_FLOAT = np.dtype(float)
 
 _LOC_NAMES = {"angle": ("theta",), "lonlat": ("lon", "lat"), "position": ("x", "y", "z")}
 
@@ -90,6 +93,8 @@ class Model(Frozen):
         self._kind = array.source_kind
         self._n_loc = array.n_source_params
         self._n_sensors = array.n_sensors
+        # log of the Gaussian normalisation, N (log sigma + log(2 pi) / 2)
+        self._log_norm = self._n_sensors * (np.log(self.sigma) + 0.5 * np.log(2 * np.pi))
         self._memo: dict[Any, Any] = {}
 
     # -- copies and derived constants ---------------------------------------------
@@ -191,6 +196,10 @@ class Model(Frozen):
         return Scene(directions=np.column_stack([loc[:, 0], lat]), intensities=inten)
 
     def _as_params(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
+        x = scene_or_params
+        if (type(x) is np.ndarray and x.dtype is _FLOAT and x.ndim
+                and not x.shape[-1] % (self._n_loc + 1)):
+            return x  # already a valid float array: the common case, checked cheaply
         if isinstance(scene_or_params, Scene):
             return self.pack(scene_or_params)
         try:
@@ -237,11 +246,11 @@ class Model(Frozen):
 
     def _units(self, loc: np.ndarray) -> np.ndarray:
         """Unit vectors (..., K, D) of far-field source locations (trig once per source)."""
-        if self.kind == "angle":
+        if self._kind == "angle":
             th = loc[..., 0]
             u = np.empty(th.shape + (2,))
-            np.cos(th, out=u[..., 0])
-            np.sin(th, out=u[..., 1])
+            np.cos(th, u[..., 0])
+            np.sin(th, u[..., 1])
             return u
         return lonlat_to_unit(loc[..., 0], loc[..., 1])
 
@@ -252,15 +261,7 @@ class Model(Frozen):
         """
         b, k = where.shape[:2]
         if self.kind == "position":
-            r2, nd = None, None
-            for i in range(3):  # component-wise: exact, no (B, K, N, 3) array
-                di = where[:, :, i, None] - self._positions_t[i]
-                ndi = di * self._normals_t[i]
-                nd = ndi if nd is None else np.add(nd, ndi, out=nd)
-                np.multiply(di, di, out=di)
-                r2 = di if r2 is None else np.add(r2, di, out=r2)
-            c = np.divide(nd, np.sqrt(r2), out=nd)
-            return np.divide(self.sensitivity.value(c), r2, out=r2)
+            return near_gain(where, self._positions_t, self._normals_t, self.sensitivity)
         c = where.reshape(b * k, -1) @ self._normals_t
         return self.sensitivity.value(c).reshape(b, k, self.n_sensors)
 
@@ -268,9 +269,36 @@ class Model(Frozen):
         """Noiseless Eq. 1 readings, shape (..., N).
 
         The batch is processed in blocks of about :data:`BLOCK_TERMS` sensor-source
-        terms so that the (block, K, N) intermediates stay in cache.
+        terms so that the (block, K, N) intermediates stay in cache.  One far-field
+        vector takes a short path with the same arithmetic (equal to the bit).
         """
-        return self._response_unchecked(self._as_params(scene_or_params))
+        x = self._as_params(scene_or_params)
+        if x.ndim == 1 and self._kind != "position":
+            return self._response_one(x)
+        return self._response_unchecked(x)
+
+    def _response_one(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`response` of one validated far-field vector x (P,): shape (N,).
+
+        The batched path's operations on a batch of one, on arrays of the same
+        layout, without its bookkeeping: unit vectors (K, D), ``g(u n^T)`` (K, N),
+        then ``I[k] g[k]`` summed in source order -- equal to the bit.
+        """
+        k = x.shape[0] // (self._n_loc + 1)
+        if k == 0:
+            return np.zeros(self._n_sensors)
+        blocks = x.reshape(k, self._n_loc + 1)
+        if self._kind == "angle":  # as _units, inlined: the same calls on the same layout
+            th, u = blocks[:, 0], np.empty((k, 2))
+            np.cos(th, u[:, 0])
+            np.sin(th, u[:, 1])
+        else:
+            u = lonlat_to_unit(blocks[:, 0], blocks[:, 1])
+        terms = np.multiply(self.sensitivity.value(np.dot(u, self._normals_t)), blocks[:, -1:])
+        out = terms[0]
+        for j in range(1, k):  # ufuncs with positional outputs: the cheapest calls
+            np.add(out, terms[j], out)
+        return out
 
     def _response_unchecked(self, x: np.ndarray) -> np.ndarray:
         """:meth:`response` of a float array x (..., P) the caller has validated."""
@@ -293,34 +321,25 @@ class Model(Frozen):
     def jacobian(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
         """d response / d params, shape (..., N, n_params)."""
         jac_t = self._jacobian_t(self._as_params(scene_or_params))
-        return np.swapaxes(jac_t, -1, -2)
+        return jac_t.T if jac_t.ndim == 2 else np.swapaxes(jac_t, -1, -2)
 
     def _jacobian_t(self, x: np.ndarray) -> np.ndarray:
         """Transposed Jacobian, C-contiguous (..., n_params, N), of a validated x."""
-        loc, inten = self._split(x)
+        k = x.shape[-1] // (self._n_loc + 1)
+        blocks = x.reshape(x.shape[:-1] + (k, self._n_loc + 1))
+        loc, inten = blocks[..., :-1], blocks[..., -1:]
         if self._kind == "position":
-            blocks = self._jacobian_near(loc, inten)
+            out = near_jacobian_t(loc, inten[..., 0], self.array.positions,
+                                  self.array.normals, self.sensitivity)
         else:
             u, tang = self._directions(loc)
             c = u @ self._normals_t  # (..., K, N)
             g, dg = self.sensitivity.value(c), self.sensitivity.derivative(c)
             dc = tang @ self._normals_t  # (..., K, d, N)
-            blocks = np.empty(c.shape[:-1] + (self._n_loc + 1, self._n_sensors))
-            np.multiply((inten[..., None] * dg)[..., None, :], dc, out=blocks[..., :-1, :])
-            blocks[..., -1, :] = g  # (..., K, d+1, N)
-        return blocks.reshape(x.shape + (self._n_sensors,))
-
-    def _jacobian_near(self, loc: np.ndarray, inten: np.ndarray) -> np.ndarray:
-        d = loc[..., :, None, :] - self.array.positions  # (..., K, N, 3)
-        r2 = np.einsum("...i,...i->...", d, d)
-        r = np.sqrt(r2)
-        nrm = self.array.normals
-        c = np.einsum("...ni,ni->...n", d, nrm) / r
-        g, dg = self.sensitivity.value(c), self.sensitivity.derivative(c)
-        dc = nrm / r[..., None] - (c / r2)[..., None] * d  # (..., K, N, 3)
-        dpos = (dg / r2)[..., None] * dc - (2.0 * g / r2**2)[..., None] * d
-        d_loc = np.moveaxis(inten[..., None, None] * dpos, -1, -2)  # (..., K, 3, N)
-        return np.concatenate([d_loc, (g / r2)[..., None, :]], axis=-2)
+            out = np.empty(c.shape[:-1] + (self._n_loc + 1, self._n_sensors))
+            np.multiply((inten * dg)[..., None, :], dc, out[..., :-1, :])
+            out[..., -1, :] = g  # (..., K, d+1, N)
+        return out.reshape(x.shape + (self._n_sensors,))
 
     # -- statistics -------------------------------------------------------------
     def check_data(self, data: object, name: str = "data") -> np.ndarray:
@@ -328,9 +347,7 @@ class Model(Frozen):
         arr = finite_array(name, data, last=self.n_sensors)
         return arr
 
-    def log_likelihood(
-        self, scene_or_params: Scene | np.ndarray, data: np.ndarray
-    ) -> np.ndarray:
+    def log_likelihood(self, scene_or_params: Scene | np.ndarray, data: np.ndarray) -> np.ndarray:
         """Gaussian log-likelihood log p(data | params), batched: shape (...,).
 
         ``params`` (..., n_params) and ``data`` (..., N) broadcast over leading axes.
@@ -339,30 +356,28 @@ class Model(Frozen):
             data = np.asarray(data, dtype=float)
         except (TypeError, ValueError):
             raise InputError(f"data must be a real array; got {type(data).__name__}") from None
-        if data.ndim == 0 or data.shape[-1] != self.n_sensors:
+        if data.ndim == 0 or data.shape[-1] != self._n_sensors:
             raise InputError(
                 f"data must have last axis of length {self.n_sensors}; got shape {data.shape}"
             )
-        mu = self.response(scene_or_params)
-        if _fits_into(data.shape, mu.shape):
-            resid = np.subtract(data, mu, out=mu)  # in place: no second (..., N) array
+        x = self._as_params(scene_or_params)
+        if x.ndim == 1 and data.ndim == 1 and self._kind != "position":
+            mu = self._response_one(x)  # a fresh array: the residual can overwrite it
+            resid = np.subtract(data, mu, out=mu)
         else:
-            resid = data - mu
+            mu = self._response_unchecked(x)
+            resid = np.subtract(data, mu, out=mu) if _fits_into(data.shape, mu.shape) else (
+                data - mu)  # in place when it fits: no second (..., N) array
         chi2 = np.einsum("...n,...n->...", resid, resid) / self.sigma**2
-        return -0.5 * chi2 - self.n_sensors * (np.log(self.sigma) + 0.5 * np.log(2 * np.pi))
+        return -0.5 * chi2 - self._log_norm
 
     def fisher(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
         """Fisher information J^T J / sigma^2, shape (..., n_params, n_params)."""
         jac = self.jacobian(scene_or_params)
         return np.swapaxes(jac, -1, -2) @ jac / self.sigma**2
 
-    def simulate(
-        self,
-        scene: Scene | np.ndarray,
-        *,
-        rng: np.random.Generator | int | None = None,
-        size: int | tuple[int, ...] | None = None,
-    ) -> np.ndarray:
+    def simulate(self, scene: Scene | np.ndarray, *, rng: np.random.Generator | int | None = None,
+                 size: int | tuple[int, ...] | None = None) -> np.ndarray:
         """Noisy readings: response + N(0, sigma^2) noise, shape ``size + (N,)``."""
         gen = as_rng(rng)
         mu = self.response(scene)

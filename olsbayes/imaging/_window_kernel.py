@@ -17,7 +17,11 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import prepare
+
+prepare()  # numba's cache folder, before numba is imported
+
+import numba  # noqa: E402
 
 __all__ = ["window_sweep_compiled", "truncnorm_inv"]
 

@@ -16,6 +16,7 @@ import warnings
 import numpy as np
 from scipy.optimize import lsq_linear
 from scipy.special import ndtri
+from threadpoolctl import threadpool_limits
 
 from .._validation import as_rng, finite_array
 from ..errors import ConvergenceWarning, InputError, NullSpaceWarning
@@ -87,6 +88,16 @@ def image(
         raise InputError(f"reference must have shape ({loc.shape[0]},) (one intensity per "
                          f"direction); got ({len(opts.reference)},)")
     gen = as_rng(rng)
+    # The matrices here are small (K <= a few hundred): BLAS threads only add
+    # synchronisation, and on a busy machine oversubscription; one thread makes
+    # the cost independent of the BLAS thread setting.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _image(model, loc, y, prior, opts, gen)
+
+
+def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
+           opts: ImageOptions, gen: np.random.Generator) -> ImageResult:
+    """:func:`image` on checked inputs."""
     a = design_matrix(model, loc)
     design = analyse_design(a, loc, model.sigma, prior.scale)
     _warn_null_space(design, opts.null_warn)
@@ -130,7 +141,7 @@ def _warn_null_space(design: Design, null_warn: float) -> None:
             "intensity combinations are invisible to the array and set by the prior alone "
             "(see result.design.null_space)",
             NullSpaceWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
 
 
@@ -231,7 +242,7 @@ def _from_draws(prior, draws, mode, design, level, hi, acc, used):
             f"the {used} chains have not mixed: largest split R-hat {rhat:.3g} > 1.1; "
             "increase n_samples/n_burn and treat sd and intervals with care",
             ConvergenceWarning,
-            stacklevel=4,
+            stacklevel=5,
         )
     p_bright = np.mean(flat > 0, axis=0) if prior == "sparse" else None
     return ImageResult(

@@ -1,15 +1,17 @@
-"""Compile every kernel of the ML wing once, on tiny problems.
+"""Compile every kernel of the package once, on tiny problems.
 
 numba compiles a kernel on its first call (then caches the machine code), so the
 first fit of a kind pays the compilation.  :func:`compile_kernels` runs one small
 fit of every kind that has its own compiled specialisation -- each method, each
-source kind, each sensitivity-law family, K = 1..4 -- so that later calls, and
-the timings of tests and benchmarks, do not carry it.
+source kind, each sensitivity-law family, K = 1..4 -- and one small image (the
+imaging sampler's window sweep), so that later calls, the first ``olsbayes demo``
+and the timings of tests and benchmarks do not carry it (``olsbayes compile``).
 """
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 
 import numpy as np
 
@@ -39,20 +41,47 @@ def _cases() -> list[tuple[Model, np.ndarray, int, tuple[str, ...]]]:
     return out
 
 
-def compile_kernels() -> int:
-    """Run one small fit per compiled specialisation; returns the number of fits run.
+def compile_kernels(progress: Callable[[int, int], None] | None = None) -> int:
+    """Run one small fit per compiled specialisation and one small image.
 
     Each fit runs on one data vector and on a batch of two, since both shapes reach
     kernels of their own (e.g. the one-lane and the blocked K-tuple scans).
+
+    Parameters
+    ----------
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each case.
+
+    Returns
+    -------
+    int
+        The number of calls run.
     """
+    cases = _cases()
     n = 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for model, x, k, methods in _cases():
+        for i, (model, x, k, methods) in enumerate(cases):
             data = model.response(x)
             for method in methods:
                 opts = MultistartOptions(n_starts=2) if method == "multistart" else None
                 for d in (data, np.stack([data, data])):
                     fit_ml(model, d, k, method, options=opts, rng=0, warn=False)
                     n += 1
-    return n
+            if progress is not None:
+                progress(i + 1, len(cases) + 1)
+        _image_once()
+    if progress is not None:
+        progress(len(cases) + 1, len(cases) + 1)
+    return n + 1
+
+
+def _image_once() -> None:
+    """One small sampled image: compiles the Gibbs sampler's window sweep."""
+    from ..imaging import Bounded, ImageOptions, image
+
+    model = Model(Ring(12), 1e-2)
+    directions = np.linspace(-np.pi, np.pi, 6, endpoint=False)
+    data = model.response(np.column_stack([directions, np.full(6, 0.5)]).ravel())
+    image(model, data, directions, Bounded(i_max=1.0),
+          options=ImageOptions(n_samples=4, n_burn=2, n_chains=2, window=3), rng=0)

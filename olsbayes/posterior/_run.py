@@ -13,7 +13,7 @@ from ._labels import relabel
 from ._logpost import LogPosterior
 from .options import SamplerOptions, emcee_moves
 
-__all__ = ["make_sampler", "run_ensemble"]
+__all__ = ["make_sampler", "run_ensemble", "AutocorrTime"]
 
 
 def make_sampler(logpost: LogPosterior, n_walkers: int, options: SamplerOptions,
@@ -36,7 +36,8 @@ def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: Sample
 
     Without ``options.n_steps`` the run stops once ``n >= tau_multiple * tau`` (tau
     stable to 10 %) and R-hat < ``rhat_max``, checked every ``check_every`` steps,
-    or at ``max_steps``.  R-hat is costlier than tau, so once the tau criterion
+    or at ``max_steps``; tau is emcee's estimate, kept up to date incrementally
+    (:class:`AutocorrTime`).  R-hat is costlier than tau, so once the tau criterion
     holds it is checked at steps growing by 25 % at least.  With ``n_steps`` the
     run takes exactly that many steps and returns False.
     """
@@ -44,13 +45,14 @@ def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: Sample
 
     fixed = options.n_steps is not None
     rhat_ok = _rhat_checker(sampler, logpost, logpost.prior, options.rhat_max)
+    autocorr = AutocorrTime(z0)
     old = np.inf
     next_rhat = 0
     for _ in sampler.sample(emcee.State(z0), iterations=options.step_limit, progress=progress):
         it = sampler.iteration
         if fixed or it % options.check_every:
             continue
-        tau = sampler.get_autocorr_time(tol=0)
+        tau = autocorr.update(sampler.get_chain())
         tmax = float(np.max(tau))
         stable = abs(old - tmax) < 0.1 * tmax
         old = tmax
@@ -68,8 +70,21 @@ def _rhat_checker(sampler, logpost: LogPosterior, prior: ScenePrior, rhat_max: f
 
     The draws checked are those the result keeps (same burn-in, thin 1), so a
     converged result reports R-hat < rhat_max.  Raw draws are tried first; they
-    are relabelled only if they fail and K > 1.
+    are relabelled only if they fail and K > 1.  R-hat is computed parameter by
+    parameter (each as in the joint computation) and the check stops at the
+    first one above the bound, starting with the one that failed last time.
     """
+    first = [0]  # the parameter that failed last: checked first next time
+
+    def below(x: np.ndarray) -> bool:
+        """max R-hat < rhat_max, one parameter at a time, stopping at the first above."""
+        x = _unwrapped(x, prior)
+        order = [first[0]] + [j for j in range(x.shape[-1]) if j != first[0]]
+        for j in order:
+            if not float(rhat_array(x[..., j:j + 1])[0]) < rhat_max:
+                first[0] = j
+                return False
+        return True
 
     def check(tmax: float) -> bool:
         if rhat_max is None:
@@ -78,7 +93,7 @@ def _rhat_checker(sampler, logpost: LogPosterior, prior: ScenePrior, rhat_max: f
         n_burn = min(int(np.ceil(5 * tmax)), chain.shape[0] // 2)
         z = chain[n_burn:].swapaxes(0, 1)
         x = logpost.to_params(z)
-        if _rhat_max(x, prior) < rhat_max:
+        if below(x):
             return True
         if prior.n_sources < 2:
             return False
@@ -86,19 +101,89 @@ def _rhat_checker(sampler, logpost: LogPosterior, prior: ScenePrior, rhat_max: f
         x, perms = relabel(x, prior.n_sources, prior.periodic[: prior.n_loc + 1], lpost)
         if np.all(perms == np.arange(prior.n_sources)):
             return False  # nothing relabelled: the same draws that just failed
-        return _rhat_max(x, prior) < rhat_max
+        return below(x)
 
     return check
 
 
-def _rhat_max(x: np.ndarray, prior: ScenePrior) -> float:
-    """Largest split R-hat over the parameters of draws (W, D, P).
-
-    Angles are unwrapped around their circular means.
-    """
+def _unwrapped(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
+    """Draws (W, D, P) with angles unwrapped around their circular means (for R-hat)."""
     if prior.periodic.any():
         per = prior.periodic
         centre = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)
         x = x.copy()
         x[..., per] = centre + wrap_angle(x[..., per] - centre)
-    return float(np.max(rhat_array(x)))
+    return x
+
+
+class AutocorrTime:
+    """emcee's integrated autocorrelation time of a growing chain, at a cost per new step.
+
+    emcee's estimate (``integrated_time`` with ``c = 5``) of a chain of n steps:
+    for every walker and parameter the autocovariance of the centred series at
+    lags 0..n-1, normalised by its lag-0 value and averaged over the walkers;
+    ``taus = 2 cumsum - 1``; tau = ``taus[M]`` at the first lag M with
+    ``M >= 5 taus[M]`` (tau = 1 if there is none).  emcee recomputes it by FFT of
+    the whole chain; here the lag sums ``sum_t y_t y_(t+lag)`` of ``y = z - z_0``
+    are accumulated as steps arrive, for lags up to a bound L that doubles
+    whenever the window M may lie beyond it, and the centring is applied
+    algebraically, ``sum (y_t - m)(y_(t+lag) - m) = S(lag) - m (A + B) + (n - lag) m^2``
+    with A, B the sums of the first and last n - lag values.  The result equals
+    emcee's up to rounding.
+
+    Parameters
+    ----------
+    z0 : ndarray (W, P)
+        The walkers' start (the reference subtracted to keep the sums well conditioned).
+    max_lag : int
+        Initial lag bound L.
+    """
+
+    def __init__(self, z0: np.ndarray, max_lag: int = 64):
+        self._ref = np.array(z0, dtype=float)
+        self._lags = np.zeros((max_lag + 1,) + self._ref.shape)
+        self._total = np.zeros(self._ref.shape)  # sum of y over the steps absorbed
+        self._n = 0  # steps absorbed
+
+    def update(self, chain: np.ndarray) -> np.ndarray:
+        """tau (P,) of ``chain`` (n, W, P), whose first steps are those seen before."""
+        n = chain.shape[0]
+        self._total += (chain[self._n:n] - self._ref).sum(axis=0)
+        self._absorb(chain, self._n, n)
+        self._n = n
+        while True:
+            tau, found = self._estimate(chain, n)
+            if found or self._lags.shape[0] >= n:
+                return tau
+            self._lags = np.zeros((2 * self._lags.shape[0] - 1,) + self._ref.shape)
+            self._absorb(chain, 0, n)
+
+    def _absorb(self, chain: np.ndarray, start: int, stop: int) -> None:
+        """Add the products of steps start..stop-1 with their predecessors to the lag sums."""
+        n_lag = self._lags.shape[0]
+        lo = max(0, start - n_lag + 1)
+        y = chain[lo:stop] - self._ref  # the new steps and the n_lag - 1 before them
+        for lag in range(min(n_lag, stop)):
+            first = max(start, lag) - lo
+            if first < stop - lo:
+                self._lags[lag] += np.einsum("t...,t...->...", y[first - lag:stop - lo - lag],
+                                             y[first:])
+
+    def _estimate(self, chain: np.ndarray, n: int) -> tuple[np.ndarray, bool]:
+        """(tau (P,), whether every parameter's window lies within the lag bound)."""
+        n_lag = min(self._lags.shape[0], n)
+        zero = np.zeros((1,) + self._ref.shape)
+        head = np.concatenate([zero, np.cumsum(chain[:n_lag - 1] - self._ref, axis=0)])
+        tail = np.concatenate([zero, np.cumsum(chain[n - 1:n - n_lag:-1] - self._ref, axis=0)])
+        total, mean = self._total, self._total / n
+        lag = np.arange(n_lag)[:, None, None]
+        acov = self._lags[:n_lag] - mean * (2 * total - head - tail) + (n - lag) * mean**2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rho = (acov / acov[0]).mean(axis=1)  # (n_lag, P)
+        taus = 2.0 * np.cumsum(rho, axis=0) - 1.0
+        inside = np.arange(n_lag)[:, None] < 5.0 * taus  # emcee's auto_window, c = 5
+        beyond = inside.all(axis=0)  # no window within the bound
+        window = np.where(beyond, 0, np.argmin(inside, axis=0))
+        window = np.where(~inside.any(axis=0), n_lag - 1, window)
+        tau = taus[window, np.arange(taus.shape[1])]
+        return tau, bool(not beyond.any() or n_lag >= n)

@@ -4,6 +4,12 @@ Every backend offers the same three operations -- ``submit(fn, *args)``,
 ``wait_first(pending)`` and ``close()`` -- so the runner keeps a bounded window
 of chunks in flight and checkpoints each one as soon as it finishes.  Dask
 (``distributed``) is an optional extra, imported only when it is used.
+
+The local process pool starts fast: its workers fork from a server process that
+has imported the package once (:mod:`._preload`), and until the first worker
+has delivered a chunk the study's own process runs queued chunks itself, so a
+small study never waits for the pool.  A chunk gives the same numbers wherever
+it runs (its trials' seeds are fixed).
 """
 
 from __future__ import annotations
@@ -39,6 +45,131 @@ class _Deferred:
         return True
 
 
+class _PoolFuture:
+    """A call for the local pool that the study's own process may run instead.
+
+    ``inner`` is the pool's future once the call has been handed to the pool
+    (None before: the pool is still starting).  :meth:`run_here` runs the call in
+    this process, cancelling the pool's copy; calls are deterministic, so where a
+    call ran never changes its result.
+    """
+
+    def __init__(self, fn: Callable, args: tuple):
+        self.inner: cf.Future | None = None
+        self._call = (fn, args)
+        self._outcome: tuple[bool, Any] | None = None
+
+    @property
+    def settled(self) -> bool:
+        """Whether the call ran here (or was cancelled before it reached the pool)."""
+        return self._outcome is not None
+
+    def hand_to(self, pool: cf.Executor) -> None:
+        """Give the call to the pool unless it ran here already."""
+        if self.inner is None and self._outcome is None:
+            fn, args = self._call
+            self.inner = pool.submit(fn, *args)
+
+    def run_here(self) -> None:
+        """Run the call in this process (its exception, if any, is kept for result())."""
+        fn, args = self._call
+        try:
+            self._outcome = (True, fn(*args))
+        except Exception as exc:  # noqa: BLE001 - re-raised by result(), as the pool would
+            self._outcome = (False, exc)
+
+    def result(self) -> Any:
+        """The call's value, or its exception raised here (run here if still unsent)."""
+        if self._outcome is None and self.inner is None:
+            self.run_here()
+        if self._outcome is not None:
+            ok, value = self._outcome
+            if ok:
+                return value
+            raise value
+        try:
+            return self.inner.result()
+        except cf.process.BrokenProcessPool as exc:
+            raise InputError(
+                "the study's worker processes ended abruptly (killed, out of memory, or "
+                "failing on start-up). Workers import the script that called run_study: a "
+                "script must call it under `if __name__ == \"__main__\":`; or use "
+                f"executor='serial' or 'threads' ({exc})") from None
+
+    def cancel(self) -> bool:
+        """Cancel the call if it has not started (here or in the pool)."""
+        if self._outcome is not None:
+            return False
+        if self.inner is None:
+            self._outcome = (False, cf.CancelledError())
+            return True
+        return self.inner.cancel()
+
+
+class _LocalPool:
+    """A ``ProcessPoolExecutor`` started in the background while the caller works.
+
+    Starting the pool (the fork server importing the package, then the first
+    worker) takes seconds; a helper thread does it while :meth:`wait_first` runs
+    queued calls in the calling process.  Once the pool runs, calls go to it, and
+    until its first result the caller keeps running calls: one it can take back
+    from the pool, else the oldest pending one (whose pool copy then runs twice).
+    """
+
+    def __init__(self, n_workers: int):
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["__main__", f"{__package__}._preload"])
+        self.pool = cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
+                                           initializer=_end_with, initargs=(os.getpid(),))
+        self.ready = threading.Event()
+        self.delivered = False
+        threading.Thread(target=self._start, name="olsbayes-study-pool-start",
+                         daemon=True).start()
+
+    def _start(self) -> None:
+        try:
+            self.pool.submit(os.getpid).result()
+        except BaseException:  # noqa: BLE001 - a broken pool reports through the calls
+            pass
+        finally:
+            self.ready.set()
+
+    def submit(self, fn: Callable, *args: Any) -> _PoolFuture:
+        """A call for the pool (handed over now if the pool runs)."""
+        fut = _PoolFuture(fn, args)
+        if self.ready.is_set():
+            fut.hand_to(self.pool)
+        return fut
+
+    def wait_first(self, pending: list[_PoolFuture]) -> tuple[list, list]:
+        """At least one of ``pending`` done, run here while the pool is not delivering."""
+        pick = None
+        if not self.ready.is_set():
+            pick = next((f for f in pending if f.inner is None and not f.settled), None)
+        if pick is None:
+            self.ready.wait()
+            for f in pending:
+                f.hand_to(self.pool)
+            pick = next((f for f in pending if f.settled), None)
+        if pick is None and not self.delivered:
+            done, _ = cf.wait([f.inner for f in pending], timeout=0,
+                              return_when=cf.FIRST_COMPLETED)
+            if not done:  # the latest call the pool has not started, else the oldest
+                pick = next((f for f in reversed(pending) if f.inner.cancel()), pending[0])
+        if pick is not None:
+            if not pick.settled:
+                pick.run_here()
+            return [pick], [f for f in pending if f is not pick]
+        done, _ = cf.wait([f.inner for f in pending], return_when=cf.FIRST_COMPLETED)
+        self.delivered = True
+        return ([f for f in pending if f.inner in done],
+                [f for f in pending if f.inner not in done])
+
+    def close(self) -> None:
+        """Stop the pool without waiting for calls whose results are no longer needed."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
 class Backend:
     """Uniform face of an executor.
 
@@ -59,6 +190,7 @@ class Backend:
         self.name, self.n_workers = name, max(1, int(n_workers))
         self.chunks_per_worker = int(chunks_per_worker)
         self._submit, self._kind, self._closer = submit, kind, closer
+        self._local: _LocalPool | None = None
 
     def submit(self, fn: Callable, *args: Any) -> Any:
         """Schedule ``fn(*args)``; return a future-like object with ``result()``."""
@@ -66,6 +198,8 @@ class Backend:
 
     def wait_first(self, pending: list) -> tuple[list, list]:
         """Block until at least one of ``pending`` is done; return (done, still pending)."""
+        if self._local is not None:
+            return self._local.wait_first(pending)
         if self._kind == "cf" or (
             self._kind == "any" and all(isinstance(f, cf.Future) for f in pending)
         ):
@@ -172,7 +306,9 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
     ----------
     executor : str, distributed.Client or concurrent.futures.Executor-like
         ``"serial"`` (in this process, in order), ``"threads"``, ``"processes"``
-        (a local ``ProcessPoolExecutor``, forkserver start), ``"dask"`` (a client
+        (a local ``ProcessPoolExecutor``, forkserver start; the fork server
+        preloads the package -- this sets its preload list, which takes effect
+        if it has not started yet), ``"dask"`` (a client
         to ``scheduler``, or a fresh ``LocalCluster`` of ``workers`` processes when
         no scheduler is given), a ``distributed.Client`` (e.g. connected to a
         dask-jobqueue cluster), or any object with ``submit(fn, *args)`` returning
@@ -194,11 +330,10 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
             return Backend("threads", n, pool.submit, "cf", pool.shutdown)
         if executor == "processes":
             n = _local_workers(workers)
-            pool = cf.ProcessPoolExecutor(max_workers=n,
-                                          mp_context=multiprocessing.get_context("forkserver"),
-                                          initializer=_end_with, initargs=(os.getpid(),))
-            return Backend("processes", n, pool.submit, "cf",
-                           lambda: pool.shutdown(cancel_futures=True))
+            local = _LocalPool(n)
+            backend = Backend("processes", n, local.submit, "pool", local.close)
+            backend._local = local
+            return backend
         if executor == "dask":
             return _start_dask(scheduler, workers)
         raise InputError(f"executor must be one of {EXECUTORS}, a distributed.Client or an "

@@ -274,3 +274,9 @@ def test_fit_exact_method_ring_only(tmp_path, capsys):
     assert "needs a Ring model" in err
     code, out, _ = run_cli(capsys, "fit", "--method", "exact", "--json")
     assert code == 0 and json.loads(out)["method"] == "exact"
+
+
+def test_compile_reports_its_cache_in_json(capsys):
+    assert main(["compile", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["calls"] > 10 and out["cache_kind"] and out["cpu_seconds"] >= 0

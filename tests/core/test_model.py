@@ -102,6 +102,24 @@ def test_batched_equals_loop_of_single_calls(geometry):
         np.testing.assert_allclose(logl[idx], model.log_likelihood(x[idx], data), rtol=1e-13)
 
 
+@pytest.mark.parametrize("law", sorted(LAWS))
+@pytest.mark.parametrize("geometry", sorted(ARRAYS))
+def test_one_vector_equals_a_batch_of_one_to_the_bit(geometry, law):
+    """The single-vector short paths repeat the batched arithmetic exactly."""
+    model = Model(ARRAYS[geometry](), SIGMA, LAWS[law])
+    rng = np.random.default_rng(21)
+    for k in range(7):
+        data = model.simulate(_params(model.kind, rng, k=2), rng=rng)
+        for _ in range(5):
+            x = _params(model.kind, rng, k=k)
+            one = x[None]  # a batch of one takes the batched path
+            assert np.array_equal(model.response(x), model.response(one)[0])
+            assert np.array_equal(model.jacobian(x), model.jacobian(one)[0])
+            logl = model.log_likelihood(one, data)[0]
+            assert model.log_likelihood(x, data) == logl
+            assert model.log_likelihood(list(x), data) == logl
+
+
 @pytest.mark.parametrize("geometry", sorted(ARRAYS))
 def test_response_is_linear_in_intensities(geometry):
     model = Model(ARRAYS[geometry](), SIGMA)

@@ -376,3 +376,29 @@ def test_rank_statistics_are_uniform_for_an_exact_posterior():
     bad = np.array([ranks_of(np.array([m]), (yy / 2 + 0.35 * rng.normal(size=(N_DRAWS, 1))))
                     for m, yy in zip(mu, y)])[:, 0]
     assert rank_test(bad, N_DRAWS, 10, rng=rng).p_value < 1e-3
+
+
+def _fail(msg):
+    raise ValueError(msg)
+
+
+def test_pool_calls_run_here_while_unsent_and_keep_their_errors():
+    from olsbayes.studies.executors import _PoolFuture
+
+    here = _PoolFuture(os.getpid, ())
+    assert here.result() == os.getpid() and here.settled  # not yet sent: runs here
+    bad = _PoolFuture(_fail, ("boom",))
+    bad.run_here()
+    with pytest.raises(ValueError, match="boom"):
+        bad.result()
+    dropped = _PoolFuture(os.getpid, ())
+    assert dropped.cancel() and not dropped.cancel()
+    with pytest.raises(cf.CancelledError):
+        dropped.result()
+
+
+def test_process_pool_study_on_many_small_chunks_equals_serial():
+    ref = run_study(noise_check, GRID, 6, executor="serial", rng=3, progress=False)
+    procs = run_study(noise_check, GRID, 6, executor="processes", workers=2, rng=3,
+                      chunk_size=1, progress=False)
+    assert procs.identical(ref)

@@ -17,6 +17,10 @@ module             compiles
 =================  ==========================================================
 
 numba is imported when a kernel is first needed, not with the package: importing
-this package imports nothing.  Every kernel is compiled once per machine and
-cached (``cache=True``).
+this package only chooses numba's cache folder (:mod:`olsbayes._jit`).  Every
+kernel is compiled once per machine and cached (``cache=True``).
 """
+
+from ..._jit import prepare
+
+prepare()  # numba's cache folder, before any kernel module imports numba

@@ -1,0 +1,167 @@
+"""Where numba caches the compiled kernels, and one status line while they compile.
+
+:func:`prepare` runs before the package first imports numba (the compiled-kernel
+modules call it).  It leaves a ``NUMBA_CACHE_DIR`` the user set alone; otherwise
+numba caches next to the modules when that folder is writable, and if it is not
+(a read-only install) :func:`prepare` points ``NUMBA_CACHE_DIR`` at the user's
+cache folder, then at a temporary folder (one warning: the cache may not last),
+and, with no writable folder at all, turns saving off (one warning: every
+process compiles again).  It also prints one line on stderr the first time in a
+process that one of the package's kernels is compiled rather than loaded, since
+compiling takes far longer than loading (``olsbayes compile`` does it ahead of
+time).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+from .errors import OlsBayesWarning
+
+__all__ = ["prepare", "cache_location", "announced"]
+
+_KERNELS = Path(__file__).resolve().parent / "ml" / "_numba"
+_STATE: dict[str, object] = {}  # what prepare() decided, once per process
+
+
+def _writable(folder: Path) -> bool:
+    """Whether files can be created in ``folder`` (made if missing)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError:
+        return False
+    return True
+
+
+def _user_cache() -> Path:
+    """The per-user cache folder of the package's compiled kernels."""
+    if sys.platform == "win32":
+        base = Path(os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local")
+    elif sys.platform == "darwin":
+        base = Path.home() / "Library" / "Caches"
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "olsbayes" / "numba"
+
+
+def _temporary() -> Path | None:
+    """A per-user folder under the system's temporary folder, or None if there is none."""
+    try:
+        base = Path(tempfile.gettempdir())
+    except (OSError, FileNotFoundError):
+        return None
+    return base / f"olsbayes-numba-{os.getuid() if hasattr(os, 'getuid') else 'user'}"
+
+
+def _choose() -> tuple[str, str | None]:
+    """(how the kernels are cached, folder or None); sets numba's variables if needed."""
+    given = os.environ.get("NUMBA_CACHE_DIR")
+    if given:
+        return "NUMBA_CACHE_DIR", given
+    here = _KERNELS / "__pycache__"
+    if _writable(here):
+        return "next to the modules", str(here)
+    if any(here.glob("*.nbi")):  # a read-only install whose kernels were compiled at install
+        os.environ["NUMBA_CACHE_LOCATOR_CLASSES"] = f"{__name__}.NoSaveLocator"
+        return "prebuilt, read-only", str(here)
+    try:
+        user = _user_cache()
+    except RuntimeError:  # no home folder
+        user = None
+    for how, folder in (("user cache", user), ("temporary", _temporary())):
+        if folder is not None and _writable(folder):
+            os.environ["NUMBA_CACHE_DIR"] = str(folder)
+            return how, str(folder)
+    os.environ["NUMBA_CACHE_LOCATOR_CLASSES"] = f"{__name__}.NoSaveLocator"
+    return "none", None
+
+
+def prepare() -> None:
+    """Choose numba's cache folder and register the compile notice (once per process).
+
+    Must run before numba is imported for the cache folder to take effect.
+    """
+    if _STATE:
+        return
+    how, folder = _choose()
+    _STATE.update(how=how, folder=folder, said=False)
+    if how == "temporary":
+        warnings.warn(f"the compiled kernels are cached in the temporary folder {folder} (the "
+                      "package's folder and the user cache are not writable); set "
+                      "NUMBA_CACHE_DIR to a lasting folder to keep them", OlsBayesWarning,
+                      stacklevel=2)
+    elif how == "none":
+        warnings.warn("no writable folder for the compiled kernels' cache: every process "
+                      "compiles them again (set NUMBA_CACHE_DIR to a writable folder)",
+                      OlsBayesWarning, stacklevel=2)
+    if "numba" in sys.modules:  # imported already (by another library): re-read the variables
+        from numba.core import config
+
+        config.reload_config()
+    from numba.core import event
+
+    saving = how not in ("none", "prebuilt, read-only")
+
+    class CompileNotice(event.Listener):
+        """One stderr line when a package kernel starts compiling (not loading)."""
+
+        def on_start(self, ev) -> None:
+            dispatcher = ev.data["dispatcher"]
+            if not getattr(dispatcher.py_func, "__module__", "").startswith("olsbayes."):
+                return
+            if not saving:  # nowhere to write the machine code
+                dispatcher._cache.disable()
+            if not _STATE["said"]:
+                _STATE["said"] = True
+                print("olsbayes: compiling numerical kernels for their first use on this "
+                      "machine (once; `olsbayes compile` does it ahead of time) ...",
+                      file=sys.stderr, flush=True)
+
+        def on_end(self, ev) -> None:
+            pass
+
+    event.register("numba:compile", CompileNotice())
+
+
+def announced() -> None:
+    """Say no more about compiling in this process (the caller has said it)."""
+    prepare()
+    _STATE["said"] = True
+
+
+def cache_location() -> tuple[str, str | None]:
+    """How the compiled kernels are cached and where: (how, folder or None)."""
+    prepare()
+    return str(_STATE["how"]), _STATE["folder"]  # type: ignore[return-value]
+
+
+def _no_save_locator():
+    """numba's in-tree cache locator, usable where the folder is read-only (never saves).
+
+    It finds kernels compiled into the package's folder at install time; saving is
+    turned off by the compile notice.
+    """
+    from numba.core import caching
+
+    base = getattr(caching, "InTreeCacheLocator", None) or caching._InTreeCacheLocator
+
+    class NoSaveLocator(base):
+        def ensure_cache_path(self):  # read-only: nothing to make
+            pass
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            return cls(py_func, py_file) if os.path.exists(py_file) else None
+
+    return NoSaveLocator
+
+
+def __getattr__(name: str):
+    if name == "NoSaveLocator":  # imported by numba by name, only when caching is off
+        return _no_save_locator()
+    raise AttributeError(name)

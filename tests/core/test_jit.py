@@ -1,0 +1,100 @@
+"""numba's cache folder: chosen before numba loads, never a traceback on a read-only install."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+import olsbayes._jit as jit
+
+_VARS = ("NUMBA_CACHE_DIR", "NUMBA_CACHE_LOCATOR_CLASSES")
+
+
+@pytest.fixture
+def fresh(monkeypatch, tmp_path):
+    """_choose() with no NUMBA_* variables, a package folder and homes under tmp_path."""
+    saved = {var: os.environ.pop(var, None) for var in _VARS}
+    kernels = tmp_path / "pkg"
+    kernels.mkdir()
+    monkeypatch.setattr(jit, "_KERNELS", kernels)
+    monkeypatch.setattr(jit, "_user_cache", lambda: tmp_path / "user")
+    monkeypatch.setattr(jit, "_temporary", lambda: tmp_path / "tmp")
+    yield tmp_path
+    for var, value in saved.items():  # _choose() sets them: never leak them to other tests
+        os.environ.pop(var, None)
+        if value is not None:
+            os.environ[var] = value
+
+
+def _unwritable(monkeypatch, *names):
+    real = jit._writable
+    monkeypatch.setattr(jit, "_writable", lambda folder: (
+        not any(part in names for part in Path(folder).parts) and real(folder)))
+
+
+def test_a_given_cache_folder_is_kept(fresh):
+    os.environ["NUMBA_CACHE_DIR"] = str(fresh / "mine")
+    assert jit._choose() == ("NUMBA_CACHE_DIR", str(fresh / "mine"))
+
+
+def test_writable_package_folder_keeps_numba_default(fresh):
+    assert jit._choose()[0] == "next to the modules"
+    assert "NUMBA_CACHE_DIR" not in os.environ
+
+
+def test_read_only_install_falls_back_to_user_then_temporary(fresh, monkeypatch):
+    _unwritable(monkeypatch, "pkg")
+    assert jit._choose() == ("user cache", str(fresh / "user"))
+    assert os.environ.pop("NUMBA_CACHE_DIR") == str(fresh / "user")
+    _unwritable(monkeypatch, "pkg", "user")
+    assert jit._choose() == ("temporary", str(fresh / "tmp"))
+
+
+def test_read_only_install_with_prebuilt_kernels_reads_them(fresh, monkeypatch):
+    (fresh / "pkg" / "__pycache__").mkdir()
+    (fresh / "pkg" / "__pycache__" / "lm.kernel-1.py311.nbi").write_bytes(b"")
+    _unwritable(monkeypatch, "pkg")
+    assert jit._choose()[0] == "prebuilt, read-only"
+    assert os.environ["NUMBA_CACHE_LOCATOR_CLASSES"] == "olsbayes._jit.NoSaveLocator"
+
+
+def test_nothing_writable_turns_saving_off(fresh, monkeypatch):
+    _unwritable(monkeypatch, "pkg", "user", "tmp")
+    assert jit._choose() == ("none", None)
+    assert os.environ["NUMBA_CACHE_LOCATOR_CLASSES"] == "olsbayes._jit.NoSaveLocator"
+
+
+def test_no_writable_folder_at_all_fits_with_one_warning_and_no_traceback(tmp_path):
+    """A fresh process where no folder can be written still fits (kernels not saved)."""
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    script = textwrap.dedent(f"""
+        import json, warnings
+        from pathlib import Path
+        import olsbayes._jit as jit
+        jit._KERNELS = Path({str(blocked)!r}) / "pkg"
+        jit._temporary = lambda: None
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            import olsbayes as ob
+            model = ob.Model(ob.Ring(12), 0.01)
+            fit = ob.fit_ml(model, model.response([0.3, 1.0]), 1, warn=False)
+        print(json.dumps({{"how": jit.cache_location()[0], "theta": float(fit.params[0]),
+                          "warnings": [str(w.message) for w in caught]}}))
+    """)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env.update(HOME=str(blocked), XDG_CACHE_HOME=str(blocked / "cache"))
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["how"] == "none"
+    assert abs(out["theta"] - 0.3) < 1e-6
+    assert len(out["warnings"]) == 1 and "NUMBA_CACHE_DIR" in out["warnings"][0]
