@@ -59,6 +59,10 @@ class ImageOptions:
     null_warn : float
         Warn :class:`~olsbayes.errors.NullSpaceWarning` when the design's
         nullity / K exceeds this fraction, in (0, 1].
+    rhat_max : float
+        Warn :class:`~olsbayes.errors.ConvergenceWarning` when the chains'
+        largest split R-hat exceeds this (> 1; default 1.01, the threshold of
+        :class:`olsbayes.posterior.SamplerOptions`).
     n_samples : int or None
         Draws kept per chain (default 200; 0 for TwoLevel, which has no
         sampler).  0 for NonNegative and Bounded is the mode-only path: the
@@ -101,6 +105,7 @@ class ImageOptions:
 
     level: float = 0.9
     null_warn: float = 0.1
+    rhat_max: float = 1.01
     n_samples: int | None = None
     n_chains: int | None = None
     n_burn: int | None = None
@@ -117,6 +122,10 @@ class ImageOptions:
         object.__setattr__(self, "level", float(lvl))
         object.__setattr__(self, "null_warn",
                            positive_float("null_warn", self.null_warn, upper=1.0))
+        rmax = self.rhat_max
+        if isinstance(rmax, bool) or not isinstance(rmax, numbers.Real) or not rmax > 1:
+            raise InputError(f"rhat_max must be a number > 1; got {rmax!r}")
+        object.__setattr__(self, "rhat_max", float(rmax))
         lows = {"n_samples": 0, "n_chains": 1, "n_burn": 0, "neighbours": 0, "window": 0,
                 "restarts": 0}
         for name, low in lows.items():
