@@ -12,7 +12,7 @@ mean, sd, credible interval and how much of it the array cannot see
 (null fraction); --figure PATH draws true sources / raw readings / estimate /
 posterior sd on a sky map (sphere arrays).
 
-The bounded and sparse priors take their upper bound i_max from the readings
+The bounded prior takes its upper bound i_max from the readings
 unless --i-max (or [image] i_max) is given; the two-level prior needs it.  A
 posterior that piles up at i_max is flagged (at_bound) and warned about.
 Without --seed a seed is drawn, printed and recorded in the JSON with the
@@ -20,7 +20,7 @@ package version, the SHA-256 of the readings and the command line.
 
 Example:
   olsbayes image scene.toml --json --seed 1
-  olsbayes image scene.toml --prior sparse --figure olss.png
+  olsbayes image scene.toml --prior two-level --i-max 1 --seed 1
   olsbayes image scene.toml --data readings.txt --prior gaussian
 """
 
@@ -45,7 +45,6 @@ from ..imaging import (
     ImageOptions,
     ImagingPrior,
     NonNegative,
-    Sparse,
     TwoLevel,
     image,
 )
@@ -70,7 +69,7 @@ register_section(Section(
                             doc="known source directions: ring angles or [[lon, lat], ...] (rad)"),
         "prior": Field("str", default="bounded", choices=PRIORS, doc="intensity prior"),
         "i_max": Field("float", positive=True,
-                       doc="intensity scale: upper bound (bounded, sparse; default from the "
+                       doc="intensity scale: upper bound (bounded; default from the "
                            "readings), bright level (two-level; required), N(i_max/2, "
                            "(i_max/2)^2) (gaussian; default 1)"),
         "level": Field("float", default=0.9, low=0.01, high=0.999, doc="interval credibility"),
@@ -101,7 +100,7 @@ def register(subparsers: Any) -> None:
                    help="readings (text/CSV/.npy, one row of N readings)")
     p.add_argument("--prior", choices=PRIORS, default=None, help="intensity prior")
     p.add_argument("--i-max", type=float, default=None, metavar="I",
-                   help="intensity scale: upper bound of the bounded and sparse priors "
+                   help="intensity scale: upper bound of the bounded prior "
                         "(default: derived from the readings), bright level of the two-level "
                         "prior (required), N(I/2, (I/2)^2) for the gaussian prior (default 1)")
     p.add_argument("--n-samples", type=int, default=None, metavar="S",
@@ -153,7 +152,7 @@ def _prior(sec: dict[str, Any]) -> ImagingPrior:
         raise InputError("prior 'two-level' needs --i-max (or [image] i_max): the intensity "
                          "of a bright source")
     i_max = positive_float("i_max", 1.0 if given is None else given)
-    bound = None if given is None else i_max  # bounded, sparse: None = from the readings
+    bound = None if given is None else i_max  # bounded: None = from the readings
     p_bright = sec.get("prior_bright")
     if p_bright is not None and name != "two-level":
         raise InputError(f"prior_bright = {p_bright!r} does not apply to prior {name!r}: it is "
@@ -162,7 +161,6 @@ def _prior(sec: dict[str, Any]) -> ImagingPrior:
         "gaussian": lambda: Gaussian(mean=0.5 * i_max, sd=0.5 * i_max, scale=i_max),
         "nonnegative": lambda: NonNegative(scale=i_max),
         "bounded": lambda: Bounded(i_max=bound),
-        "sparse": lambda: Sparse(i_max=bound),
         "two-level": lambda: TwoLevel(i_max=i_max,
                                       p_bright=0.5 if p_bright is None else p_bright),
     }

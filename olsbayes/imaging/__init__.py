@@ -3,8 +3,9 @@
 With the directions fixed, Eq. 1 is linear in the intensities, ``s = A I +
 noise``; :func:`image` returns their posterior under a prior object --
 :class:`Gaussian` (closed form, with evidence), :class:`NonNegative`,
-:class:`Bounded`, :class:`Sparse` (spike-and-slab) or :class:`TwoLevel` (each
-intensity 0 or i_max; the MAP scene of a local search) -- with the sampler
+:class:`Bounded` or :class:`TwoLevel` (each intensity 0 or i_max; the MAP scene
+of a local search), and the experimental :class:`Sparse` (spike-and-slab; not
+offered by name, see ``olsbayes.imaging.priors.WITHDRAWN``) -- with the sampler
 settings in one :class:`ImageOptions`, plus the design matrix's rank,
 conditioning and null space: what the array cannot see.  A box prior given
 without ``i_max`` takes its bound from the readings (:func:`data_bound`), and

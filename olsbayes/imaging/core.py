@@ -6,7 +6,7 @@ validates every input, analyses the design (rank, conditioning, null space)
 and dispatches on the prior: the Gaussian posterior in closed form; for the
 others, the mode of the bounded (nonnegative) least squares, and from it the
 MAP search of the two-level prior, the mode alone (``n_samples=0``) or a
-sampler -- Gibbs, eigen-Gibbs or exact HMC -- started around it.
+sampler -- Gibbs or exact HMC -- started around it.
 
 A box prior given without ``i_max`` gets the bound derived from the readings
 (:func:`~olsbayes.imaging.priors.data_bound`).  Whatever the bound, a posterior
@@ -31,7 +31,6 @@ from ..errors import ConvergenceWarning, InputError, NullSpaceWarning, PriorBoun
 from ..model import Model
 from .binary import sparse_relaxation, two_level_map
 from .design import Design, analyse_design, check_directions, design_matrix
-from .eigen import eigen_gibbs
 from .gaussian import gaussian_posterior
 from .neighbours import neighbour_groups, neighbour_pairs
 from .options import ImageOptions
@@ -79,8 +78,8 @@ def image(
     -------
     ImageResult
         ``sampler`` names the path taken: ``"closed-form"`` (Gaussian),
-        ``"gibbs"``, ``"eigen"``, ``"hmc"``, ``"mode-only"`` (``n_samples=0``)
-        or ``"map-search"`` (TwoLevel).
+        ``"gibbs"``, ``"hmc"``, ``"mode-only"`` (``n_samples=0``) or
+        ``"map-search"`` (TwoLevel).
 
     Raises
     ------
@@ -212,11 +211,6 @@ def _sampled(model, loc, a, y, mode, design, prior, opts, gen):
     acc = 1.0
     if opts.sampler == "gibbs":
         draws = _gibbs(model, loc, a, y, x0, prior, opts, gen)
-    elif opts.sampler == "eigen":
-        k = a.shape[1]
-        run = eigen_gibbs(a.T @ a / sigma**2, a.T @ y / sigma**2, np.zeros(k), np.full(k, hi),
-                          x0, opts.n_samples, rng=gen, n_burn=opts.n_burn)
-        draws = run.samples
     else:
         draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen, design)
     return _from_draws(prior.name, draws, mode, design, opts, hi, acc)

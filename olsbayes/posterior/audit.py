@@ -53,6 +53,9 @@ KINK_SDS = 2.0
 HIGH_CORRELATION = 0.9
 
 
+#: R-hat above which a parameter counts as poorly mixed: the default
+#: ``SamplerOptions.rhat_max`` and ``ImageOptions.rhat_max``, one threshold everywhere.
+RHAT_MAX = 1.01
 #: Credibility of the highest-density interval that, reaching a prior bound, counts as
 #: the posterior piling up there (the level of the summary's HDI).
 BOUND_LEVEL = 0.94
@@ -161,7 +164,7 @@ class CRLBCheck:
         source or with sigma, e.g. a plate's z and I); ``low SNR`` (I / CRLB sd
         of I < 10 for the source); ``near the kink`` (a sub-sensor horizon
         within 2 CRLB sd of the direction); ``poor mixing`` (bulk ESS < 100 or
-        R-hat > 1.05).
+        R-hat > 1.01, the sampler's own convergence threshold).
     """
 
     names: tuple[str, ...]
@@ -226,7 +229,7 @@ def _reasons(result: PosteriorDraws, table, crlb_sd: np.ndarray) -> list[list[st
             out[j].append("low SNR")
         if src is not None and kink[src]:
             out[j].append("near the kink (a sub-sensor horizon within 2 sd)")
-        if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > 1.05:
+        if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > RHAT_MAX:
             out[j].append("poor mixing")
     return out
 

@@ -10,7 +10,15 @@ from scipy.optimize import lsq_linear
 
 import olsbayes as ob
 from olsbayes.errors import InputError
-from olsbayes.imaging import Bounded, ImageOptions, NonNegative, TwoLevel, design_matrix, image
+from olsbayes.imaging import (
+    Bounded,
+    ImageOptions,
+    NonNegative,
+    Sparse,
+    TwoLevel,
+    design_matrix,
+    image,
+)
 from olsbayes.imaging.binary import two_level_log_posterior, two_level_map
 
 
@@ -51,7 +59,7 @@ def test_mode_only_is_bounded_least_squares_without_sampling(sphere_problem, pri
 
 @pytest.mark.parametrize(
     "prior,n,match",
-    [("bounded", 2, "0 \\(mode only\\) or >= 4"), ("sparse", 0, ">= 4"),
+    [("bounded", 2, "0 \\(mode only\\) or >= 4"), (Sparse(), 0, ">= 4"),
      (TwoLevel(i_max=1.0), 10, "MAP only")],
 )
 def test_n_samples_rules_per_prior(sphere_problem, prior, n, match):
