@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         report = None if out is None else out / "posterior"
         selection = select_k(model, data, 3, method="laplace", rng=sel_rng)
         payload["selection"] = selection.to_dict()
-        say("", "Evidence for K = 0..3 sources (Laplace):", selection.table())
+        say("", "Evidence for K = 0..3 sources:", selection.table())
         payload["posterior"], post_text = posterior_block(
             model, data, truth.n_sources, truth, post_rng, report=report, ml=fit,
             selection=selection)

@@ -10,7 +10,7 @@ prior_bright, restarts); a setting the prior does not use is an error.
 Prints the design's rank and null space size and, per direction, the posterior
 mean, sd, credible interval and how much of it the array cannot see
 (null fraction); --figure PATH draws true sources / raw readings / estimate /
-posterior sd on a sky map (sphere arrays).
+posterior sd on sky maps (sphere arrays), or intensity against angle (rings).
 
 The bounded prior takes its upper bound i_max from the readings
 unless --i-max (or [image] i_max) is given; the two-level prior needs it.  A
@@ -107,7 +107,8 @@ def register(subparsers: Any) -> None:
                    help="draws per chain (default 200; 0 = posterior mode only, no sampling; "
                         "the two-level prior is MAP only)")
     p.add_argument("--figure", type=Path, default=None, metavar="PNG",
-                   help="write the sky-map panels (sphere arrays) to this PNG file")
+                   help="write the figure (sky maps for a sphere, intensity against angle "
+                        "for a ring) to this PNG file")
     add_seed_arg(p, help="seed of the sampler and of a [data] simulation")
     add_json_arg(p)
     p.set_defaults(run=run)
@@ -216,8 +217,9 @@ def run(args: argparse.Namespace) -> int:
     prior = _prior(sec)
     options = _options(sec, prior, truth, dirs.shape[0])
     if args.figure is not None:
-        if model.kind != "lonlat":
-            raise InputError("--figure draws sky maps and needs a sphere array")
+        if model.kind == "position":
+            raise InputError("--figure draws sky maps (sphere) or angles (ring); a plate's "
+                             "near sources have none")
         output_dir(args.figure.parent if str(args.figure.parent) else Path("."), "--figure")
     seed = args.seed if args.seed is not None else draw_seed()
     res = image(model, data, dirs, prior, options=options, rng=seed)

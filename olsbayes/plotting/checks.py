@@ -68,7 +68,7 @@ def plot_ppc(result, level: float = 0.9, fig: Any = None) -> Any:
     bottom.plot(x[order], resid[order], "o", ms=3, color="tab:red")
     bottom.set_ylabel("residual / sigma")
     bottom.set_xlabel(label)
-    top.set_title(f"chi^2/dof = {check.chi2_dof:.3g} (dof {check.dof}), "
+    top.set_title(rf"$\chi^2$/dof = {check.chi2_dof:.3g} (dof {check.dof}), "
                   f"posterior predictive p = {check.ppp:.3g}")
     return fig
 
@@ -96,7 +96,7 @@ def plot_k_posterior(selection, ax: Any = None) -> Any:
     colours = ["tab:orange" if k == selection.best else "tab:blue" for k in ks]
     ax.bar(ks, probs, color=colours)
     for k, p, ev in zip(ks, probs, selection.evidences):
-        err = "" if not np.isfinite(ev.error) else f" ± {ev.error:.2g}"
+        err = "" if not (np.isfinite(ev.error) and ev.error > 0) else f" ± {ev.error:.2g}"
         ax.text(k, p, f"log Z {ev.log_evidence:.1f}{err}\n{ev.method}", ha="center",
                 va="bottom", fontsize=7)
     ax.set_xticks(ks)

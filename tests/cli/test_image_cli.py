@@ -109,3 +109,10 @@ def test_image_bound_below_the_truth_warns_and_flags(capsys):
     out = json.loads(captured.out)
     assert "olsbayes: warning: PriorBoundWarning" in captured.err
     assert out["at_bound"] == [True, True] and out["i_max"] == 1.0
+
+
+def test_image_figure_on_a_ring(tmp_path, capsys):
+    """--figure used to need a sphere; a ring draws intensity against direction angle."""
+    png = tmp_path / "ring.png"
+    assert main(["image", "--seed", "1", "--figure", str(png)]) == 0
+    assert f"Figure: {png}" in capsys.readouterr().out and png.stat().st_size > 1000
