@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from .._provenance import provenance
 from ..bounds import crlb
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import parse_config
@@ -101,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     ml_rng, post_rng, sel_rng = np.random.SeedSequence(seed).spawn(3)
     fit = fit_ml(model, data, truth.n_sources, rng=ml_rng)
     payload = crlb_payload(model, truth, bound)
-    payload.update(seed=seed, readings=data, fit=fit_payload(model, fit, truth, data))
+    payload.update(seed=seed, readings=data, fit=fit_payload(model, fit, truth, data),
+                   provenance=provenance(seed=seed, data=data))
     say = _Printer(args)
     say(f"Simulated {model.n_sensors} readings (seed {seed}) of the Fig. 3 scene.",
         crlb_text(model, truth, bound), "",

@@ -230,6 +230,7 @@ class SelectionResult:
                     "laplace": _num(ev.laplace),
                     "trusted": bool(ev.trusted),
                     "reasons": list(ev.reasons),
+                    "names": _names(ev),
                     "params": [float(v) for v in ev.params],
                     "origin": ev.origin,
                     "n_calls": int(ev.n_calls),
@@ -238,6 +239,14 @@ class SelectionResult:
                 for ev, p, lp in zip(self.evidences, self.probabilities, self.log_prior_k)
             ],
         }
+
+
+def _names(ev: KEvidence) -> list[str] | None:
+    """Parameter names of a candidate's ``params`` (from its fit's model), None if unknown."""
+    if ev.k == 0:
+        return []
+    model = getattr(ev.fit, "model", None)
+    return list(model.param_names(ev.k)) if hasattr(model, "param_names") else None
 
 
 def _num(x: float) -> float | None:
