@@ -150,6 +150,29 @@ def _by_variable(values: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
     return out
 
 
+def _dims_coords(post: dict, names: list[str], constants: dict, n_sensors: int,
+                 n_walkers: int) -> tuple[dict, dict]:
+    """Named dims and coordinates of every variable (see :func:`to_inference_data`)."""
+    k = max((i + 1 for _, i in split_names(names) if i is not None), default=0)
+    p = len(names)
+    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
+    dims.update({"obs": ["sensor"], "normals": ["sensor", "axis"],
+                 "positions": ["sensor", "axis"]})
+    for key, value in constants.items():
+        shape = np.shape(value)
+        if key not in dims and shape == (p,):
+            dims[key] = ["parameter"]
+        elif key not in dims and shape == (p, p):
+            dims[key] = ["parameter", "parameter_bis"]
+        elif key not in dims and len(shape) == 1 and shape[0] == n_walkers:
+            dims[key] = ["walker"]
+    n_axis = np.shape(constants["normals"])[-1] if "normals" in constants else 0
+    coords = {"source": np.arange(k), "sensor": np.arange(n_sensors),
+              "parameter": list(names), "parameter_bis": list(names),
+              "axis": ["x", "y", "z"][:n_axis], "walker": np.arange(n_walkers)}
+    return dims, coords
+
+
 def to_inference_data(
     draws: np.ndarray,
     names: list[str],
@@ -199,23 +222,7 @@ def to_inference_data(
     """
     az = import_arviz()
     post = _by_variable(unwrap_periodic(draws, centre, periodic), names)
-    k = max((i + 1 for _, i in split_names(names) if i is not None), default=0)
-    n_sensors, p = data.shape[-1], len(names)
-    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
-    dims.update({"obs": ["sensor"], "normals": ["sensor", "axis"],
-                 "positions": ["sensor", "axis"]})
-    for key, value in constants.items():
-        shape = np.shape(value)
-        if key not in dims and shape == (p,):
-            dims[key] = ["parameter"]
-        elif key not in dims and shape == (p, p):
-            dims[key] = ["parameter", "parameter_bis"]
-        elif key not in dims and len(shape) == 1 and shape[0] == draws.shape[0]:
-            dims[key] = ["walker"]
-    n_axis = np.shape(constants["normals"])[-1] if "normals" in constants else 0
-    coords = {"source": np.arange(k), "sensor": np.arange(n_sensors),
-              "parameter": list(names), "parameter_bis": list(names),
-              "axis": ["x", "y", "z"][:n_axis], "walker": np.arange(draws.shape[0])}
+    dims, coords = _dims_coords(post, names, constants, data.shape[-1], draws.shape[0])
     with _known_shapes():
         idata = az.from_dict(
             posterior=post,

@@ -183,6 +183,23 @@ def _html(title: str, info: dict, tables: dict, files: dict[str, Path]) -> str:
     )
 
 
+def _summary_payload(result: PosteriorResult, info: dict, tables: dict, ml, selection) -> dict:
+    """The content of summary.json: run facts, names in order, tables, model check."""
+    table = tables["summary"]
+    payload = {"run": info, "names": list(result.names),
+               "model_check": result.model_check().to_dict(),
+               "parameters": {name: {col: table.loc[name, col] for col in table.columns}
+                              for name in table.index}}
+    if ml is not None:
+        payload["ml"] = {"names": list(result.model.param_names(result.n_sources)),
+                         "params": ml.params, "std": ml.std, "method": ml.method}
+    if "truth" in tables["sources"]:
+        payload["truths"] = dict(zip(result.names, tables["sources"]["truth"]))
+    if selection is not None:
+        payload["selection"] = selection.to_dict()
+    return payload
+
+
 def write_report(
     result: PosteriorResult,
     folder: str | os.PathLike,
@@ -234,18 +251,7 @@ def write_report(
         tables["selection"] = selection.summary()
     write_text_atomic(files["summary_csv"], tables["summary"].to_csv())
     info = _run_info(result, metadata)
-    table = tables["summary"]
-    payload = {"run": info, "names": list(result.names), "model_check": result.model_check(),
-               "parameters": {name: {col: table.loc[name, col] for col in table.columns}
-                              for name in table.index}}
-    payload["model_check"] = payload["model_check"].to_dict()
-    if ml is not None:
-        payload["ml"] = {"names": list(result.model.param_names(result.n_sources)),
-                         "params": ml.params, "std": ml.std, "method": ml.method}
-    if truths is not None:
-        payload["truths"] = dict(zip(result.names, tables["sources"]["truth"]))
-    if selection is not None:
-        payload["selection"] = selection.to_dict()
+    payload = _summary_payload(result, info, tables, ml, selection)
     write_text_atomic(files["summary_json"], json.dumps(_jsonable(payload), indent=2))
     result.to_netcdf(files["netcdf"])
     title = title or f"olsbayes posterior: K = {result.n_sources} ({result.model.kind})"
