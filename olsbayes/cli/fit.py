@@ -269,8 +269,8 @@ def run(args: argparse.Namespace) -> int:
     if want_posterior:
         _check_posterior_args(args, data)
     # --seed S simulates exactly the readings of `olsbayes simulate --seed S`; the
-    # optimiser and the sampler get independent child streams of the same seed (drawn
-    # and reported when not given, so the run can be repeated with --seed)
+    # optimiser and the sampler get independent child streams of the same seed (drawn,
+    # printed and recorded when not given; --seed S would also reseed a [data] simulation)
     seed = args.seed if args.seed is not None else draw_seed()
     ml_rng, post_rng = np.random.SeedSequence(seed).spawn(2)
     result = fit_ml(model, data, k, method=args.method, rng=ml_rng)
@@ -291,7 +291,8 @@ def run(args: argparse.Namespace) -> int:
     head = (f"{model!r}\nML fit ({result.method}) of K = {k} source(s); sd = Fisher "
             "(CRLB) at the estimate; locations in "
             + (unit if model.kind != "position" else "length units")
-            + f"\nseed {seed}" + (" (drawn; repeat with --seed)" if args.seed is None else ""))
+            + f"\nseed {seed}" + (" (drawn; recorded in the JSON and the report)"
+                                  if args.seed is None else ""))
     if want_posterior:
         payload["posterior"], text = posterior_block(
             model, data, k, truth, post_rng, args.max_steps, args.report, ml=result,

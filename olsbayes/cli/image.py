@@ -235,7 +235,7 @@ def run(args: argparse.Namespace) -> int:
         f"Imaging {res.n_sources} directions with {s['n_sensors']} sub-sensors, prior "
         f"{res.prior!r}{bound} ({s['sampler']}): rank {s['rank']}, null space {s['nullity']}, "
         f"condition {s['condition']:.3g}, R-hat {s['rhat']:.3g}",
-        f"seed {seed}" + (" (drawn; repeat with --seed)" if args.seed is None else ""),
+        f"seed {seed}" + (" (drawn; recorded in the JSON)" if args.seed is None else ""),
     ]
     header = ["k", "mean", "sd", f"lo{res.level:.0%}", f"hi{res.level:.0%}", "null frac"]
     rows = [[k, res.mean[k], res.sd[k], res.lower[k], res.upper[k], res.null_fraction[k]]
