@@ -10,7 +10,7 @@ Matlab's ``linspace(-pi, pi, 20)`` with the +-pi meridian doubled; sources
 ``endpoints`` or ``centres``) and T noise draws it reports the design's rank
 and the error of
 
-* ``bounded-MAP``: ``image(prior="bounded", options=ImageOptions(n_samples=0))``, the
+* ``bounded-MAP``: ``image(prior=Bounded(i_max=1.0), options=ImageOptions(n_samples=0))``, the
   mode-only path -- bounded least squares (BVLS), the mode of the posterior under
   the uniform [0, 1] prior (not unique when the design has a null space), plus the
   design diagnostics -- with its wall time (the "<= 1 s" target; compare the
@@ -18,7 +18,7 @@ and the error of
 * ``MAP-rounded``: the bounded MAP rounded to {0, 1} -- not a posterior, a
   check of what two-valuedness buys: it shows whether the 0/1 scene is
   recoverable from the readings at all, independently of sampler mixing;
-* ``two-level``: ``image(prior="two-level", options=ImageOptions(reference=truth))``, the
+* ``two-level``: ``image(prior=TwoLevel(i_max=1.0), options=ImageOptions(reference=truth))``, the
   MAP of the prior "each intensity 0 or 1 (P = 1/2)" by local search from the rounded
   BVLS mode and the rounded L1 relaxation; ``fails`` counts draws where the
   truth has a higher log posterior than the scene found (search failures),
@@ -65,7 +65,14 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.imaging import ImageOptions, analyse_design, design_matrix  # noqa: E402
+from olsbayes.imaging import (  # noqa: E402
+    Bounded,
+    ImageOptions,
+    Sparse,
+    TwoLevel,
+    analyse_design,
+    design_matrix,
+)
 from olsbayes.imaging.olss import SIGMA, fig2_sphere, olss_bitmap, olss_directions  # noqa: E402
 
 PAPER_SD = 0.0640
@@ -105,7 +112,7 @@ def run_convention(sensors: str, sources: str, trials: int, n_mcmc: int, n_sampl
         for t in range(trials):
             truth = truths[t]
             t0 = time.perf_counter()
-            mode = ob.image(model, data[t], dirs, "bounded",
+            mode = ob.image(model, data[t], dirs, Bounded(i_max=1.0),
                             options=ImageOptions(n_samples=0)).mode
             secs["bounded-MAP"].append(time.perf_counter() - t0)
             est["bounded-MAP"].append(mode)
@@ -113,7 +120,7 @@ def run_convention(sensors: str, sources: str, trials: int, n_mcmc: int, n_sampl
             secs["MAP-rounded"].append(secs["bounded-MAP"][-1])
             for name, extra in (("two-level", 0), ("two-level+40", 40)) if binary else ():
                 t0 = time.perf_counter()
-                tl = ob.image(model, data[t], dirs, "two-level", rng=rng,
+                tl = ob.image(model, data[t], dirs, TwoLevel(i_max=1.0), rng=rng,
                               options=ImageOptions(reference=truth, restarts=extra))
                 secs[name].append(time.perf_counter() - t0)
                 est[name].append(tl.mode)
@@ -123,10 +130,11 @@ def run_convention(sensors: str, sources: str, trials: int, n_mcmc: int, n_sampl
             runs = [("gaussian", "gaussian", {})]
             if t < n_mcmc:
                 mc = dict(n_samples=n_samples, n_burn=n_samples // 2)
-                runs += [("bounded-gibbs", "bounded",
+                runs += [("bounded-gibbs", Bounded(i_max=1.0),
                           dict(options=ImageOptions(sampler="gibbs", **mc), rng=rng))]
                 if binary and sparse:
-                    runs += [("sparse", "sparse", dict(options=ImageOptions(**mc), rng=rng))]
+                    runs += [("sparse", Sparse(i_max=1.0),
+                              dict(options=ImageOptions(**mc), rng=rng))]
             for name, prior, kw in runs:
                 t0 = time.perf_counter()
                 res = ob.image(model, data[t], dirs, prior, **kw)

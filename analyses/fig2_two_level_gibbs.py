@@ -39,7 +39,12 @@ import warnings  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.imaging import ImageOptions, design_matrix, neighbour_groups  # noqa: E402
+from olsbayes.imaging import (  # noqa: E402
+    ImageOptions,
+    TwoLevel,
+    design_matrix,
+    neighbour_groups,
+)
 from olsbayes.imaging.binary import sparse_relaxation, two_level_log_posterior  # noqa: E402
 from olsbayes.imaging.binary_gibbs import credible_sets, two_level_gibbs  # noqa: E402
 from olsbayes.imaging.olss import SIGMA, fig2_sphere, olss_bitmap, olss_directions  # noqa: E402
@@ -61,7 +66,8 @@ def run(sensors, sources, trials, n_samples, width, n_chains, starts, rng):
         y = a @ truth + SIGMA * rng.standard_normal(a.shape[0])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ob.NullSpaceWarning)
-            res = ob.image(model, y, dirs, "two-level", options=ImageOptions(reference=truth))
+            res = ob.image(model, y, dirs, TwoLevel(i_max=1.0),
+                           options=ImageOptions(reference=truth))
         relaxed = sparse_relaxation(a, y, SIGMA, 1.0)
         half = n_chains // 2 if starts == "mixed" else n_chains
         s0 = np.vstack([np.tile(res.mode > 0.5, (half, 1)),

@@ -6,9 +6,9 @@ in <= 1 s; <= 0.032 with the sparse prior; 90 % intervals covering the truth
 distinct meridians, ``linspace`` = Matlab's linspace(-pi, pi, 20); sources at
 the range endpoints) the estimators run side by side on the same noise draws:
 
-* ``bounded-mode``  ``image(prior="bounded", options=ImageOptions(n_samples=0))``: the
+* ``bounded-mode``  ``image(prior=Bounded(i_max=1.0), options=ImageOptions(n_samples=0))``: the
   posterior mode (BVLS) with the design diagnostics, no sampling -- the "<= 1 s" path;
-* ``two-level``     ``image(prior="two-level")``: MAP of the 0/1 prior by local
+* ``two-level``     ``image(prior=TwoLevel(i_max=1.0))``: MAP of the 0/1 prior by local
   search (``fails``: draws where the truth has a higher log posterior than the
   scene found, i.e. search failures); ``two-level+40`` the same with 40 extra
   starts (the L1 relaxation rounded at random); ``exact`` counts draws whose estimate
@@ -17,8 +17,6 @@ the range endpoints) the estimators run side by side on the same noise draws:
 * ``bounded``       posterior mean of the uniform [0, 1] prior (Gibbs + pair moves +
   window moves along the slow eigen-directions of each source's 16-source window);
   ``bounded-nowin`` the same without the window moves (``ImageOptions(window=0)``);
-* ``bounded-eigen`` the same posterior sampled with ``ImageOptions(sampler="eigen")``
-  (single site + exact moves along the eigenvectors of A^T A, null space included);
 * ``sparse``        posterior mean of the spike-and-slab prior (Gibbs + pair moves).
 
 Printed per row: error sd and its ratio to the target, median wall and CPU
@@ -58,11 +56,11 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
-from olsbayes.imaging import ImageOptions, design_matrix  # noqa: E402
+from olsbayes.imaging import Bounded, ImageOptions, Sparse, TwoLevel, design_matrix  # noqa: E402
 from olsbayes.imaging.olss import SIGMA, fig2_sphere, olss_bitmap, olss_directions  # noqa: E402
 
 TARGET_SD = {"bounded-mode": 0.064, "two-level": 0.032, "two-level+40": 0.032,
-             "gaussian": 0.064, "bounded": 0.064, "bounded-nowin": 0.064, "bounded-eigen": 0.064,
+             "gaussian": 0.064, "bounded": 0.064, "bounded-nowin": 0.064,
              "sparse": 0.032}
 
 
@@ -80,19 +78,18 @@ def bench(sensors: str, trials: int, mc_trials: int, n_samples: int, seed: np.ra
         warnings.simplefilter("ignore", ob.NullSpaceWarning)
         warnings.simplefilter("ignore", ob.ConvergenceWarning)
         for t in range(trials):
-            calls = [("bounded-mode", "bounded", dict(options=ImageOptions(n_samples=0))),
-                     ("two-level", "two-level", dict(options=ImageOptions(reference=truth))),
-                     ("two-level+40", "two-level",
+            box, binary = Bounded(i_max=1.0), TwoLevel(i_max=1.0)
+            calls = [("bounded-mode", box, dict(options=ImageOptions(n_samples=0))),
+                     ("two-level", binary, dict(options=ImageOptions(reference=truth))),
+                     ("two-level+40", binary,
                       dict(options=ImageOptions(reference=truth, restarts=40), rng=rng)),
                      ("gaussian", "gaussian", {})]
             if t < mc_trials:
                 calls += [
-                    ("bounded", "bounded", dict(options=ImageOptions(**mc), rng=rng)),
-                    ("bounded-nowin", "bounded",
+                    ("bounded", box, dict(options=ImageOptions(**mc), rng=rng)),
+                    ("bounded-nowin", box,
                      dict(options=ImageOptions(window=0, **mc), rng=rng)),
-                    ("bounded-eigen", "bounded",
-                     dict(options=ImageOptions(sampler="eigen", **mc), rng=rng)),
-                    ("sparse", "sparse", dict(options=ImageOptions(**mc), rng=rng)),
+                    ("sparse", Sparse(i_max=1.0), dict(options=ImageOptions(**mc), rng=rng)),
                 ]
             for name, prior, kw in calls:
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -138,7 +135,7 @@ def calibration(trials: int, seed: np.random.SeedSequence) -> list[dict]:
         for _ in range(trials):
             truth = (rng.random(8) < 0.3).astype(float) if truths[0] == "v" else rng.random(8)
             y = a @ truth + sigma * rng.standard_normal(a.shape[0])
-            res = ob.image(model, y, dirs, "bounded", rng=rng,
+            res = ob.image(model, y, dirs, Bounded(i_max=1.0), rng=rng,
                            options=ImageOptions(n_samples=400, n_burn=100))
             cov.append(res.covers(truth).mean())
             rhat.append(res.rhat)

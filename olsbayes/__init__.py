@@ -19,6 +19,7 @@ from .errors import (
     NullSpaceWarning,
     OlsBayesError,
     OlsBayesWarning,
+    PriorBoundWarning,
     ResolutionWarning,
 )
 from .geometry import Plate, Ring, SensorArray, Sphere
@@ -87,4 +88,5 @@ __all__ = [
     "EvidenceWarning",
     "NullSpaceWarning",
     "MultimodalWarning",
+    "PriorBoundWarning",
 ]

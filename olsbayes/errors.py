@@ -19,6 +19,7 @@ __all__ = [
     "EvidenceWarning",
     "NullSpaceWarning",
     "MultimodalWarning",
+    "PriorBoundWarning",
 ]
 
 
@@ -62,4 +63,12 @@ class MultimodalWarning(OlsBayesWarning):
     """A distinct local optimum fits almost as well as the estimate.
 
     The likelihood is multimodal there and Fisher (CRLB) errors understate the uncertainty.
+    """
+
+
+class PriorBoundWarning(OlsBayesWarning):
+    """A posterior piles up at a bound of its prior.
+
+    The prior, not the data, then limits the estimate: its mean and sd describe the
+    bound (raise it, or derive it from the data).
     """

@@ -3,9 +3,12 @@
 Default scene: a ring of N = 30 sub-sensors with the clipped-cosine law, noise
 sigma = 0.01, two sources pi apart with intensities 1.0 and 0.2.  Prints the
 truth, the exact CRLB next to the paper's Eq. 3 / Eq. 4, the maximum-likelihood
-estimate, and the emcee posterior sd next to the CRLB; writes the response plot
-to --out and the posterior report (corner plot with CRLB ellipses, traces,
-tables, NetCDF, report.html) to --out/posterior/.
+estimate, and the emcee posterior sd next to the CRLB with the model check
+(chi^2/dof, posterior predictive p-value); writes the response plot to --out and
+the posterior report (corner plot with CRLB ellipses, traces, posterior
+predictive and residual panel, ML and truth tables, the Laplace evidence for
+K = 0..3 with p(K | data), NetCDF, report.html) to --out/posterior/.  Each part
+is printed as soon as it is computed.
 
 Example:
   olsbayes demo
@@ -22,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from .._provenance import provenance
 from ..bounds import crlb
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import parse_config
@@ -95,28 +99,48 @@ def run(args: argparse.Namespace) -> int:
     data = data_from_config(cfg, model, truth, rng=seed)
     out = None if args.no_figures else output_dir(args.out)
     bound = crlb(model, truth)
-    ml_rng, post_rng = np.random.SeedSequence(seed).spawn(2)
+    ml_rng, post_rng, sel_rng = np.random.SeedSequence(seed).spawn(3)
     fit = fit_ml(model, data, truth.n_sources, rng=ml_rng)
     payload = crlb_payload(model, truth, bound)
-    payload.update(seed=seed, readings=data, fit=fit_payload(model, fit, truth))
-    text = [
-        f"Simulated {model.n_sensors} readings (seed {seed}) of the Fig. 3 scene.",
-        crlb_text(model, truth, bound),
-        "",
+    payload.update(seed=seed, readings=data, fit=fit_payload(model, fit, truth, data),
+                   provenance=provenance(seed=seed, data=data))
+    say = _Printer(args)
+    say(f"Simulated {model.n_sensors} readings (seed {seed}) of the Fig. 3 scene.",
+        crlb_text(model, truth, bound), "",
         f"Maximum-likelihood estimate ({fit.method}), log-likelihood "
-        f"{float(fit.log_likelihood):.6g}; sd = Fisher at the estimate:",
-        fit_text(model, fit, truth),
-    ]
+        f"{float(fit.log_likelihood):.6g}, chi^2/dof {float(payload['fit']['chi2_dof']):.4g}; "
+        "sd = Fisher at the estimate:",
+        fit_text(model, fit, truth))
     figs = [] if out is None else _figures(out, model, data, truth, fit.params)
     if not args.no_posterior:
+        from ..select import select_k
+
         report = None if out is None else out / "posterior"
+        selection = select_k(model, data, 3, method="laplace", rng=sel_rng)
+        payload["selection"] = selection.to_dict()
+        say("", "Evidence for K = 0..3 sources:", selection.table())
         payload["posterior"], post_text = posterior_block(
-            model, data, truth.n_sources, truth, post_rng, report=report)
-        text.append(post_text)
+            model, data, truth.n_sources, truth, post_rng, report=report, ml=fit,
+            selection=selection)
+        say(post_text)
         if report is not None:
-            figs += [report / "corner.png", report / "trace.png"]
+            figs += [report / name for name in ("corner.png", "trace.png", "ppc.png",
+                                                "k_posterior.png")]
     if out is not None:
         payload["figures"] = figs
-        text.append("Figures: " + ", ".join(str(p) for p in figs))
-    emit(args, payload, "\n".join(text))
+        say("Figures: " + ", ".join(str(p) for p in figs))
+    if args.json:
+        emit(args, payload, "")
     return 0
+
+
+class _Printer:
+    """Prints text blocks at once (nothing with --json, whose object comes at the end)."""
+
+    def __init__(self, args: argparse.Namespace):
+        self.quiet = bool(getattr(args, "json", False))
+
+    def __call__(self, *blocks: str) -> None:
+        if not self.quiet:
+            sys.stdout.write("\n".join(blocks).rstrip("\n") + "\n")
+            sys.stdout.flush()

@@ -5,8 +5,15 @@ or a simulation of [scene]).  K comes from --n-sources, else from [scene].
 A file with T rows is fitted row by row in one batched call.
 
 With --posterior the ML point seeds an emcee ensemble (olsbayes.posterior) and
-the posterior sd is printed next to the CRLB; --report DIR also writes corner and
-trace plots, summary tables, the NetCDF posterior and report.html into DIR.
+the posterior sd is printed next to the CRLB, with chi^2/dof and the posterior
+predictive p-value; --report DIR also writes corner, trace and posterior
+predictive plots, summary tables, the NetCDF posterior and report.html into DIR.
+The posterior lists its sources as the ML table does (source k is the ML
+estimate's source k), in the text, the JSON and every report file.
+
+Without --seed a seed is drawn, printed and recorded in the outputs (JSON,
+report), with the package version, the SHA-256 of the readings (and of --data)
+and the command line.  Angles are printed in the [scene] angle_unit (rad or deg).
 
 Example:
   olsbayes simulate --out readings.txt
@@ -23,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from .._provenance import draw_seed, file_sha256, provenance
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..circular import wrap_angle
 from ..config import read_readings
@@ -40,7 +48,8 @@ from ._common import (
     output_dir,
 )
 
-__all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs", "posterior_block"]
+__all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs", "posterior_block",
+           "angle_unit_of", "in_unit"]
 
 
 def register(subparsers: Any) -> None:
@@ -91,28 +100,62 @@ def load_fit_inputs(args: argparse.Namespace) -> tuple[Model, Scene | None, np.n
     return model, truth, data, k
 
 
+def angle_unit_of(args: argparse.Namespace) -> str:
+    """The [scene] angle_unit of the command's configuration ("rad" or "deg")."""
+    cfg = load_cli_config(args, required=("sensor",))
+    return (cfg.get("scene") or {}).get("angle_unit", "rad")
+
+
+def in_unit(model: Model, names: list[str], values: np.ndarray, unit: str) -> np.ndarray:
+    """``values`` (..., P) with the angle parameters (theta, lon, lat) converted to ``unit``.
+
+    Parameters are named by ``names`` (length P); non-angles are returned unchanged.
+    """
+    out = np.array(values, dtype=float)
+    if unit == "deg" and model.kind != "position":
+        angles = [i for i, n in enumerate(names) if n.split("[")[0] in ("theta", "lon", "lat")]
+        out[..., angles] = np.rad2deg(out[..., angles])
+    return out
+
+
 def _rows(model: Model, params: np.ndarray, std: np.ndarray) -> list[list[Any]]:
     k = model.n_sources_of(params)
     blocks, sds = params.reshape(k, -1), std.reshape(k, -1)
     return [[*blocks[i, :-1], blocks[i, -1], *sds[i, :-1], sds[i, -1]] for i in range(k)]
 
 
-def fit_payload(model: Model, result: Any, truth: Scene | None) -> dict[str, Any]:
-    """JSON-ready dictionary of an :class:`~olsbayes.ml.MLResult`."""
+def _chi2(model: Model, data: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """chi^2 = sum ((y - mu) / sigma)^2 of each fit, shape () or (T,)."""
+    resid = (np.asarray(data, dtype=float) - model.response(np.asarray(params))) / model.sigma
+    return np.sum(resid**2, axis=-1)
+
+
+def fit_payload(model: Model, result: Any, truth: Scene | None, data: np.ndarray | None = None,
+                unit: str = "rad") -> dict[str, Any]:
+    """JSON-ready dictionary of an :class:`~olsbayes.ml.MLResult`.
+
+    Angles in ``unit``; with ``data``, ``chi2`` and ``chi2_dof`` (dof = N - P) of the fit.
+    """
+    names = model.param_names(result.n_sources)
     payload: dict[str, Any] = {
         "model": repr(model),
         "method": result.method,
         "n_sources": result.n_sources,
-        "param_names": model.param_names(result.n_sources),
-        "params": result.params,
-        "std": result.std,
+        "param_names": names,
+        "angle_unit": unit,
+        "params": in_unit(model, names, result.params, unit),
+        "std": in_unit(model, names, result.std, unit),
         "log_likelihood": result.log_likelihood,
         "converged": result.converged,
         "rival_gap": result.rival_gap,
     }
+    if data is not None:
+        chi2 = _chi2(model, data, result.params)
+        dof = model.n_sensors - len(names)
+        payload.update(chi2=chi2, dof=dof, chi2_dof=chi2 / dof if dof > 0 else np.nan)
     if truth is not None:
         x_true = model.canonical(model.pack(truth))
-        payload["truth"] = x_true
+        payload["truth"] = in_unit(model, names, x_true, unit)
         payload["error_over_std"] = _z(model, result.params, x_true, result.std)
     return payload
 
@@ -127,19 +170,24 @@ def _z(model: Model, est: np.ndarray, true: np.ndarray, std: np.ndarray) -> np.n
         return err / std
 
 
-def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = None) -> str:
-    """Estimate +- Fisher std per source (and the truth, when known) as a table."""
+def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = None,
+             unit: str = "rad") -> str:
+    """Estimate +- Fisher std per source (and the truth, when known) as a table; angles in unit."""
     names = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}[
         model.kind
     ]
-    params = result.params if row is None else result.params[row]
-    std = result.std if row is None else result.std[row]
+    flat_names = model.param_names(result.n_sources)
+    params = in_unit(model, flat_names,
+                     result.params if row is None else result.params[row], unit)
+    std = in_unit(model, flat_names, result.std if row is None else result.std[row], unit)
     header = ["k", *names, "I", *(f"sd({n})" for n in names), "sd(I)"]
     rows = [[i, *r] for i, r in enumerate(_rows(model, params, std))]
     lines = [format_table(header, rows)]
     if truth is not None:
         x_true = model.canonical(model.pack(truth))
-        z = _z(model, params, x_true, std).reshape(result.n_sources, -1)
+        z = _z(model, result.params if row is None else result.params[row], x_true,
+               result.std if row is None else result.std[row]).reshape(result.n_sources, -1)
+        x_true = in_unit(model, flat_names, x_true, unit)
         t_rows = [[i, *x_true.reshape(result.n_sources, -1)[i], *z[i]]
                   for i in range(result.n_sources)]
         lines += ["Truth and error / sd:", format_table(
@@ -160,46 +208,48 @@ def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
         output_dir(args.report, "--report")
 
 
-def _ml_table_order(model: Model, estimate: np.ndarray, k: int) -> list[tuple[Any, int]]:
-    """(source index of the ML table, parameter index) pairs, sources in canonical order.
-
-    The posterior labels sources by its own relabelling rule (cyclic from a pivot);
-    the ML table by :meth:`Model.canonical`.  Rows follow the ML table so a reader
-    compares the same source in both; parameters after the sources (sigma) come last.
-    """
-    d1 = model.n_loc + 1
-    blocks = np.asarray(estimate[: k * d1], dtype=float).reshape(k, d1)
-    key = blocks[:, 0] if model.kind == "position" else wrap_angle(blocks[:, 0])
-    order = np.argsort(key, kind="stable")  # the rule of Model.canonical
-    pairs = [(rank, int(src) * d1 + j) for rank, src in enumerate(order) for j in range(d1)]
-    return pairs + [("-", i) for i in range(k * d1, len(estimate))]
-
-
 def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None, rng: Any,
-                    max_steps: int = 20000, report: Path | None = None
-                    ) -> tuple[dict[str, Any], str]:
-    """Sample the posterior (and write the report into ``report``): payload and text."""
+                    max_steps: int = 20000, report: Path | None = None, *, ml: Any = None,
+                    unit: str = "rad", metadata: dict[str, Any] | None = None,
+                    selection: Any = None) -> tuple[dict[str, Any], str]:
+    """Sample the posterior (and write the report into ``report``): payload and text.
+
+    ``ml`` (the MLResult printed above) is the walkers' start, so the posterior
+    labels its sources as the ML table does; angles are printed in ``unit``.
+    ``selection`` (a SelectionResult) adds p(K | data) to the report.
+    """
     from ..posterior import SamplerOptions, sample
 
     folder = None if report is None else output_dir(report, "--report")
-    post = sample(model, data, k, options=SamplerOptions(max_steps=max_steps), rng=rng,
-                  progress=False)
-    check = post.crlb_check()
+    post = sample(model, data, k, start=ml, options=SamplerOptions(max_steps=max_steps),
+                  rng=rng, progress=False)
+    check, mc = post.crlb_check(), post.model_check()
+    names = list(post.names)
+
+    def conv(values: np.ndarray) -> np.ndarray:
+        return in_unit(model, names, values, unit)
+
     payload: dict[str, Any] = {
-        "estimate": post.estimate, "posterior_sd": check.posterior_sd, "crlb_sd": check.crlb_sd,
+        "names": names, "angle_unit": unit, "estimate": conv(post.estimate),
+        "posterior_sd": conv(check.posterior_sd), "crlb_sd": conv(check.crlb_sd),
         "ratio": check.ratio, "flagged": check.flagged, "converged": post.converged,
-        "n_steps": post.n_steps, "tau": post.tau,
+        "n_steps": post.n_steps, "tau": post.tau, "at_prior_bound": list(post.at_bound),
+        "model_check": mc.to_dict(),
     }
-    rows = [[k_ml, post.names[i].split("[")[0], post.estimate[i], check.posterior_sd[i],
-             check.crlb_sd[i], check.ratio[i]]
-            for k_ml, i in _ml_table_order(model, post.estimate, k)]
+    d1 = model.n_loc + 1
+    rows = [[i // d1 if i < k * d1 else "-", names[i].split("[")[0], conv(post.estimate)[i],
+             conv(check.posterior_sd)[i], conv(check.crlb_sd)[i], check.ratio[i]]
+            for i in range(len(names))]
     text = ["", f"Posterior (emcee, {post.n_steps} steps, converged={post.converged}; "
             "k as in the ML table):",
-            format_table(["k", "param", "mean", "posterior sd", "CRLB sd", "ratio"], rows)]
+            format_table(["k", "param", "mean", "posterior sd", "CRLB sd", "ratio"], rows),
+            f"Model check: chi^2/dof = {mc.chi2_dof:.4g} (dof {mc.dof}), posterior predictive "
+            f"p = {mc.ppp:.3g}"]
     if folder is not None:
         from ..posterior.report import write_report
 
-        files = write_report(post, folder, truths=truth)
+        files = write_report(post, folder, truths=truth, ml=ml, selection=selection,
+                             metadata=metadata)
         payload["report"] = files.html
         text.append(f"Report: {files.html}")
     return payload, "\n".join(text)
@@ -214,27 +264,40 @@ def run(args: argparse.Namespace) -> int:
     from ..ml import fit_ml
 
     model, truth, data, k = load_fit_inputs(args)
+    unit = angle_unit_of(args)
     want_posterior = args.posterior or args.report is not None
     if want_posterior:
         _check_posterior_args(args, data)
     # --seed S simulates exactly the readings of `olsbayes simulate --seed S`; the
-    # optimiser and the sampler get independent child streams of the same seed
-    ml_rng, post_rng = (None, None) if args.seed is None else np.random.SeedSequence(
-        args.seed).spawn(2)
+    # optimiser and the sampler get independent child streams of the same seed (drawn,
+    # printed and recorded when not given; --seed S would also reseed a [data] simulation)
+    seed = args.seed if args.seed is not None else draw_seed()
+    ml_rng, post_rng = np.random.SeedSequence(seed).spawn(2)
     result = fit_ml(model, data, k, method=args.method, rng=ml_rng)
-    payload = fit_payload(model, result, truth)
+    record = provenance(seed=seed, data=data)
+    if args.data is not None:
+        record.update(data_file=str(args.data), data_file_sha256=file_sha256(args.data))
+    payload = fit_payload(model, result, truth, data, unit)
+    payload["provenance"] = record
+    chi = np.atleast_1d(payload["chi2_dof"])
     if result.is_batch:
-        blocks = [f"row {t}: log-likelihood {float(result.log_likelihood[t]):.6g}\n"
-                  + fit_text(model, result, truth, row=t) for t in range(result.n_trials)]
+        blocks = [f"row {t}: log-likelihood {float(result.log_likelihood[t]):.6g}, chi^2/dof "
+                  f"{float(chi[t]):.4g}\n" + fit_text(model, result, truth, row=t, unit=unit)
+                  for t in range(result.n_trials)]
     else:
-        blocks = [f"log-likelihood {float(result.log_likelihood):.6g}\n"
-                  + fit_text(model, result, truth)]
+        blocks = [f"log-likelihood {float(result.log_likelihood):.6g}, chi^2/dof "
+                  f"{float(chi[0]):.4g} (dof {payload['dof']})\n"
+                  + fit_text(model, result, truth, unit=unit)]
     head = (f"{model!r}\nML fit ({result.method}) of K = {k} source(s); sd = Fisher "
             "(CRLB) at the estimate; locations in "
-            + ("rad" if model.kind != "position" else "length units"))
+            + (unit if model.kind != "position" else "length units")
+            + f"\nseed {seed}" + (" (drawn; recorded in the JSON and the report)"
+                                  if args.seed is None else ""))
     if want_posterior:
-        payload["posterior"], text = posterior_block(model, data, k, truth, post_rng,
-                                                     args.max_steps, args.report)
+        payload["posterior"], text = posterior_block(
+            model, data, k, truth, post_rng, args.max_steps, args.report, ml=result,
+            unit=unit, metadata={key: record[key] for key in ("data_file", "data_file_sha256")
+                                 if key in record})
         blocks.append(text)
     emit(args, payload, "\n".join([head, *blocks]))
     return 0

@@ -10,11 +10,17 @@ prior_bright, restarts); a setting the prior does not use is an error.
 Prints the design's rank and null space size and, per direction, the posterior
 mean, sd, credible interval and how much of it the array cannot see
 (null fraction); --figure PATH draws true sources / raw readings / estimate /
-posterior sd on a sky map (sphere arrays).
+posterior sd on sky maps (sphere arrays), or intensity against angle (rings).
+
+The bounded prior takes its upper bound i_max from the readings
+unless --i-max (or [image] i_max) is given; the two-level prior needs it.  A
+posterior that piles up at i_max is flagged (at_bound) and warned about.
+Without --seed a seed is drawn, printed and recorded in the JSON with the
+package version, the SHA-256 of the readings and the command line.
 
 Example:
   olsbayes image scene.toml --json --seed 1
-  olsbayes image scene.toml --prior sparse --figure olss.png
+  olsbayes image scene.toml --prior two-level --i-max 1 --seed 1
   olsbayes image scene.toml --data readings.txt --prior gaussian
 """
 
@@ -26,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from .._provenance import draw_seed, file_sha256, provenance
 from .._validation import positive_float
 from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import Field, Section, read_readings, register_section
@@ -38,7 +45,6 @@ from ..imaging import (
     ImageOptions,
     ImagingPrior,
     NonNegative,
-    Sparse,
     TwoLevel,
     image,
 )
@@ -62,9 +68,10 @@ register_section(Section(
         "directions": Field("array", ndim=(1, 2),
                             doc="known source directions: ring angles or [[lon, lat], ...] (rad)"),
         "prior": Field("str", default="bounded", choices=PRIORS, doc="intensity prior"),
-        "i_max": Field("float", default=1.0, positive=True,
-                       doc="intensity scale: upper bound (bounded, sparse), bright level "
-                           "(two-level), N(i_max/2, (i_max/2)^2) (gaussian)"),
+        "i_max": Field("float", positive=True,
+                       doc="intensity scale: upper bound (bounded; default from the "
+                           "readings), bright level (two-level; required), N(i_max/2, "
+                           "(i_max/2)^2) (gaussian; default 1)"),
         "level": Field("float", default=0.9, low=0.01, high=0.999, doc="interval credibility"),
         # the keys below have no default here: each one given must apply to the prior
         "n_samples": Field("int", low=0, high=1_000_000,
@@ -93,14 +100,15 @@ def register(subparsers: Any) -> None:
                    help="readings (text/CSV/.npy, one row of N readings)")
     p.add_argument("--prior", choices=PRIORS, default=None, help="intensity prior")
     p.add_argument("--i-max", type=float, default=None, metavar="I",
-                   help="intensity scale: upper bound of the bounded and sparse priors, "
-                        "bright level of the two-level prior, N(I/2, (I/2)^2) for the "
-                        "gaussian prior (default 1)")
+                   help="intensity scale: upper bound of the bounded prior "
+                        "(default: derived from the readings), bright level of the two-level "
+                        "prior (required), N(I/2, (I/2)^2) for the gaussian prior (default 1)")
     p.add_argument("--n-samples", type=int, default=None, metavar="S",
                    help="draws per chain (default 200; 0 = posterior mode only, no sampling; "
                         "the two-level prior is MAP only)")
     p.add_argument("--figure", type=Path, default=None, metavar="PNG",
-                   help="write the sky-map panels (sphere arrays) to this PNG file")
+                   help="write the figure (sky maps for a sphere, intensity against angle "
+                        "for a ring) to this PNG file")
     add_seed_arg(p, help="seed of the sampler and of a [data] simulation")
     add_json_arg(p)
     p.set_defaults(run=run)
@@ -129,6 +137,8 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, np.ndarray, np.ndarray, np.n
         raise InputError("image needs known directions: [image] directions or a [scene]")
     if args.prior is not None:
         sec["prior"] = args.prior
+    sec["_angle_unit"] = (cfg.get("scene") or {}).get("angle_unit", "rad") \
+        if "directions" not in sec else "rad"
     for key in ("i_max", "n_samples"):
         if getattr(args, key) is not None:
             sec[key] = getattr(args, key)
@@ -138,7 +148,12 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, np.ndarray, np.ndarray, np.n
 def _prior(sec: dict[str, Any]) -> ImagingPrior:
     """The prior object of the [image] settings (prior name, i_max, prior_bright)."""
     name = sec.get("prior", "bounded")
-    i_max = positive_float("i_max", sec.get("i_max", 1.0))
+    given = sec.get("i_max")
+    if given is None and name == "two-level":
+        raise InputError("prior 'two-level' needs --i-max (or [image] i_max): the intensity "
+                         "of a bright source")
+    i_max = positive_float("i_max", 1.0 if given is None else given)
+    bound = None if given is None else i_max  # bounded: None = from the readings
     p_bright = sec.get("prior_bright")
     if p_bright is not None and name != "two-level":
         raise InputError(f"prior_bright = {p_bright!r} does not apply to prior {name!r}: it is "
@@ -146,8 +161,7 @@ def _prior(sec: dict[str, Any]) -> ImagingPrior:
     build = {
         "gaussian": lambda: Gaussian(mean=0.5 * i_max, sd=0.5 * i_max, scale=i_max),
         "nonnegative": lambda: NonNegative(scale=i_max),
-        "bounded": lambda: Bounded(i_max=i_max),
-        "sparse": lambda: Sparse(i_max=i_max),
+        "bounded": lambda: Bounded(i_max=bound),
         "two-level": lambda: TwoLevel(i_max=i_max,
                                       p_bright=0.5 if p_bright is None else p_bright),
     }
@@ -165,6 +179,34 @@ def _options(sec: dict[str, Any], prior: ImagingPrior, truth: np.ndarray | None,
                         **{key: sec[key] for key in keys if sec.get(key) is not None})
 
 
+def _payload(res: Any, truth: np.ndarray | None, unit: str) -> dict[str, Any]:
+    """JSON-ready result: diagnostics, per-direction table (directions in ``unit``)."""
+    dirs = np.asarray(res.directions, dtype=float)
+    if unit == "deg" and dirs.ndim and res.design.directions.shape[-1] in (1, 2):
+        dirs = np.rad2deg(dirs)
+    payload: dict[str, Any] = {
+        **res.diagnostics(),
+        "names": [f"I[{k}]" for k in range(res.n_sources)],
+        "angle_unit": unit,
+        "directions": dirs,
+        "mean": res.mean,
+        "mode": res.mode,
+        "sd": res.sd,
+        "lower": res.lower,
+        "upper": res.upper,
+        "null_fraction": res.null_fraction,
+    }
+    if res.p_bright is not None:
+        payload["p_bright"] = res.p_bright
+    if res.at_bound is not None:
+        payload["at_bound"] = res.at_bound
+    if truth is not None and truth.shape == res.mean.shape:
+        payload["truth"] = truth
+        payload["error_sd"] = float(np.std(res.mean - truth))
+        payload["coverage"] = float(np.mean(res.covers(truth)))
+    return payload
+
+
 def run(args: argparse.Namespace) -> int:
     """Image the known directions: print the intensity posterior per direction.
 
@@ -175,35 +217,32 @@ def run(args: argparse.Namespace) -> int:
     prior = _prior(sec)
     options = _options(sec, prior, truth, dirs.shape[0])
     if args.figure is not None:
-        if model.kind != "lonlat":
-            raise InputError("--figure draws sky maps and needs a sphere array")
+        if model.kind == "position":
+            raise InputError("--figure draws sky maps (sphere) or angles (ring); a plate's "
+                             "near sources have none")
         output_dir(args.figure.parent if str(args.figure.parent) else Path("."), "--figure")
-    res = image(model, data, dirs, prior, options=options, rng=args.seed)
-    payload: dict[str, Any] = {
-        **res.summary(),
-        "directions": res.directions,
-        "mean": res.mean,
-        "mode": res.mode,
-        "sd": res.sd,
-        "lower": res.lower,
-        "upper": res.upper,
-        "null_fraction": res.null_fraction,
-    }
-    if res.p_bright is not None:
-        payload["p_bright"] = res.p_bright
-    if truth is not None and truth.shape == res.mean.shape:
-        payload["truth"] = truth
-        payload["error_sd"] = float(np.std(res.mean - truth))
-        payload["coverage"] = float(np.mean(res.covers(truth)))
-    s = res.summary()
+    seed = args.seed if args.seed is not None else draw_seed()
+    res = image(model, data, dirs, prior, options=options, rng=seed)
+    unit = sec.get("_angle_unit", "rad")
+    payload = _payload(res, truth, unit)
+    record = provenance(seed=seed, data=data)
+    if args.data is not None:
+        record.update(data_file=str(args.data), data_file_sha256=file_sha256(args.data))
+    payload["provenance"] = record
+    s = res.diagnostics()
+    bound = "" if res.i_max is None else f", i_max {res.i_max:.4g}"
     lines = [
         f"Imaging {res.n_sources} directions with {s['n_sensors']} sub-sensors, prior "
-        f"{res.prior!r} ({s['sampler']}): rank {s['rank']}, null space {s['nullity']}, "
+        f"{res.prior!r}{bound} ({s['sampler']}): rank {s['rank']}, null space {s['nullity']}, "
         f"condition {s['condition']:.3g}, R-hat {s['rhat']:.3g}",
+        f"seed {seed}" + (" (drawn; recorded in the JSON)" if args.seed is None else ""),
     ]
     header = ["k", "mean", "sd", f"lo{res.level:.0%}", f"hi{res.level:.0%}", "null frac"]
     rows = [[k, res.mean[k], res.sd[k], res.lower[k], res.upper[k], res.null_fraction[k]]
             for k in range(res.n_sources)]
+    if res.at_bound is not None:
+        header.append("at i_max")
+        rows = [r + ["yes" if res.at_bound[k] else ""] for k, r in enumerate(rows)]
     lines.append(format_table(header, rows, 4))
     if res.search is not None:
         lines.append(f"MAP search: log posterior {s['log_posterior']:.6g} after {s['moves']} "

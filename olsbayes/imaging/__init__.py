@@ -3,14 +3,19 @@
 With the directions fixed, Eq. 1 is linear in the intensities, ``s = A I +
 noise``; :func:`image` returns their posterior under a prior object --
 :class:`Gaussian` (closed form, with evidence), :class:`NonNegative`,
-:class:`Bounded`, :class:`Sparse` (spike-and-slab) or :class:`TwoLevel` (each
-intensity 0 or i_max; the MAP scene of a local search) -- with the sampler
+:class:`Bounded` or :class:`TwoLevel` (each intensity 0 or i_max; the MAP scene
+of a local search), and the experimental :class:`Sparse` (spike-and-slab; not
+offered by name, see ``olsbayes.imaging.priors.WITHDRAWN``) -- with the sampler
 settings in one :class:`ImageOptions`, plus the design matrix's rank,
-conditioning and null space: what the array cannot see.
+conditioning and null space: what the array cannot see.  A box prior given
+without ``i_max`` takes its bound from the readings (:func:`data_bound`), and
+every result flags (and warns about) a posterior that piles up at its bound.
 
     >>> from olsbayes.imaging import Bounded, ImageOptions, image
     >>> res = image(model, data, directions, Bounded(i_max=2.0),
     ...             options=ImageOptions(n_samples=400), rng=1)  # doctest: +SKIP
+    >>> res.summary()          # one row per direction (pandas)     # doctest: +SKIP
+    >>> res.save("image.nc"); ImageResult.load("image.nc")          # doctest: +SKIP
 """
 
 from .binary import BinaryMap, two_level_log_posterior, two_level_map
@@ -21,7 +26,17 @@ from .eigen import eigen_gibbs
 from .gaussian import GaussianPosterior, gaussian_posterior
 from .neighbours import neighbour_groups, neighbour_pairs
 from .options import SAMPLERS, ImageOptions
-from .priors import PRIORS, Bounded, Gaussian, ImagingPrior, NonNegative, Sparse, TwoLevel
+from .priors import (
+    PRIORS,
+    Bounded,
+    Gaussian,
+    ImagingPrior,
+    NonNegative,
+    Sparse,
+    TwoLevel,
+    data_bound,
+    with_data_bound,
+)
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import GibbsSamples, gibbs_intensities
 from .truncated import TruncatedSamples, sample_truncated_gaussian, truncnorm_1d
@@ -37,6 +52,8 @@ __all__ = [
     "Sparse",
     "TwoLevel",
     "PRIORS",
+    "data_bound",
+    "with_data_bound",
     "SAMPLERS",
     "Design",
     "design_matrix",

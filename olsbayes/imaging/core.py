@@ -6,7 +6,16 @@ validates every input, analyses the design (rank, conditioning, null space)
 and dispatches on the prior: the Gaussian posterior in closed form; for the
 others, the mode of the bounded (nonnegative) least squares, and from it the
 MAP search of the two-level prior, the mode alone (``n_samples=0``) or a
-sampler -- Gibbs, eigen-Gibbs or exact HMC -- started around it.
+sampler -- Gibbs or exact HMC -- started around it.
+
+A box prior given without ``i_max`` gets the bound derived from the readings
+(:func:`~olsbayes.imaging.priors.data_bound`).  Whatever the bound, a posterior
+that piles up at it -- the credible interval reaching ``i_max``, or the mode on
+it -- is reported in ``ImageResult.at_bound`` and warned about
+(:class:`~olsbayes.errors.PriorBoundWarning`): the bound, not the data, then
+sets the estimate.  Chains whose largest split R-hat exceeds
+``ImageOptions.rhat_max`` (1.01, the posterior sampler's threshold) are warned
+about (:class:`~olsbayes.errors.ConvergenceWarning`).
 """
 
 from __future__ import annotations
@@ -19,15 +28,14 @@ from scipy.special import ndtri
 from threadpoolctl import threadpool_limits
 
 from .._validation import as_rng, finite_array
-from ..errors import ConvergenceWarning, InputError, NullSpaceWarning
+from ..errors import ConvergenceWarning, InputError, NullSpaceWarning, PriorBoundWarning
 from ..model import Model
 from .binary import sparse_relaxation, two_level_map
 from .design import Design, analyse_design, check_directions, design_matrix
-from .eigen import eigen_gibbs
 from .gaussian import gaussian_posterior
 from .neighbours import neighbour_groups, neighbour_pairs
 from .options import ImageOptions
-from .priors import Gaussian, ImagingPrior, Sparse, TwoLevel, as_prior
+from .priors import Gaussian, ImagingPrior, Sparse, TwoLevel, as_prior, with_data_bound
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import gibbs_intensities
 from .truncated import sample_truncated_gaussian
@@ -58,7 +66,9 @@ def image(
         rad, or plate positions.
     prior : Gaussian, NonNegative, Bounded, Sparse, TwoLevel or str
         The intensity prior (:mod:`olsbayes.imaging.priors`), or its name in
-        ``PRIORS`` for its default settings (``"bounded"``: uniform on [0, 1]).
+        ``PRIORS`` for its default settings (``"bounded"``: uniform on
+        ``[0, i_max]`` with ``i_max`` derived from the readings; ``"two-level"``
+        has no default, give ``TwoLevel(i_max=...)``).
     options : ImageOptions, optional
         Sampler and search settings; every field set must be one the prior
         uses (:mod:`olsbayes.imaging.options`).
@@ -69,8 +79,8 @@ def image(
     -------
     ImageResult
         ``sampler`` names the path taken: ``"closed-form"`` (Gaussian),
-        ``"gibbs"``, ``"eigen"``, ``"hmc"``, ``"mode-only"`` (``n_samples=0``)
-        or ``"map-search"`` (TwoLevel).
+        ``"gibbs"``, ``"hmc"``, ``"mode-only"`` (``n_samples=0``) or
+        ``"map-search"`` (TwoLevel).
 
     Raises
     ------
@@ -99,6 +109,7 @@ def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
            opts: ImageOptions, gen: np.random.Generator) -> ImageResult:
     """:func:`image` on checked inputs."""
     a = design_matrix(model, loc)
+    prior = with_data_bound(prior, a, y, model.sigma)
     design = analyse_design(a, loc, model.sigma, prior.scale)
     _warn_null_space(design, opts.null_warn)
     if isinstance(prior, Gaussian):
@@ -108,10 +119,35 @@ def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
         return _two_level(model, loc, a, y, mode, design, prior, opts, gen)
     if opts.n_samples == 0:
         nan = np.full(mode.shape[0], np.nan)
+        hi = prior.upper
+        at = _warn_at_bound(mode >= hi * (1 - 1e-9), hi, "posterior mode", 3) \
+            if np.isfinite(hi) else None
         return ImageResult(prior=prior.name, directions=design.directions, mean=mode, mode=mode,
                            sd=nan, lower=nan, upper=nan, level=opts.level, design=design,
-                           rhat=float("nan"), sampler="mode-only")
+                           rhat=float("nan"), sampler="mode-only", i_max=_i_max(prior),
+                           at_bound=at)
     return _sampled(model, loc, a, y, mode, design, prior, opts, gen)
+
+
+def _i_max(prior: ImagingPrior) -> float | None:
+    return float(prior.upper) if np.isfinite(getattr(prior, "upper", np.inf)) else None
+
+
+def _warn_at_bound(at: np.ndarray, hi: float, what: str, stacklevel: int) -> np.ndarray:
+    """Warn PriorBoundWarning when ``at`` (K,) flags directions limited by the bound."""
+    at = np.asarray(at, dtype=bool)
+    if at.any():
+        idx = np.flatnonzero(at)
+        shown = ", ".join(map(str, idx[:8])) + (" ..." if idx.size > 8 else "")
+        warnings.warn(
+            f"the {what} of {idx.size} intensit{'y' if idx.size == 1 else 'ies'} "
+            f"(direction {shown}) reaches the prior's upper bound i_max = {hi:.4g}: the "
+            "bound, not the data, limits them; raise i_max (or leave it unset to derive "
+            "it from the readings)",
+            PriorBoundWarning,
+            stacklevel=stacklevel,
+        )
+    return at
 
 
 def _as_options(options: object) -> ImageOptions:
@@ -175,7 +211,8 @@ def _two_level(model, loc, a, y, mode, design, prior, opts, gen):
     nan = np.full(mode.shape[0], np.nan)
     return ImageResult(prior=prior.name, directions=design.directions, mean=best.x,
                        mode=best.x, sd=nan, lower=nan, upper=nan, level=opts.level,
-                       design=design, rhat=float("nan"), sampler="map-search", search=best)
+                       design=design, rhat=float("nan"), sampler="map-search", search=best,
+                       i_max=float(i_max))
 
 
 def _sampled(model, loc, a, y, mode, design, prior, opts, gen):
@@ -185,14 +222,9 @@ def _sampled(model, loc, a, y, mode, design, prior, opts, gen):
     acc = 1.0
     if opts.sampler == "gibbs":
         draws = _gibbs(model, loc, a, y, x0, prior, opts, gen)
-    elif opts.sampler == "eigen":
-        k = a.shape[1]
-        run = eigen_gibbs(a.T @ a / sigma**2, a.T @ y / sigma**2, np.zeros(k), np.full(k, hi),
-                          x0, opts.n_samples, rng=gen, n_burn=opts.n_burn)
-        draws = run.samples
     else:
         draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen, design)
-    return _from_draws(prior.name, draws, mode, design, opts.level, hi, acc, opts.sampler)
+    return _from_draws(prior.name, draws, mode, design, opts, hi, acc)
 
 
 def _gibbs(model, loc, a, y, x0, prior, opts, gen):
@@ -231,23 +263,28 @@ def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design):
     return run.samples, run.acceptance
 
 
-def _from_draws(prior, draws, mode, design, level, hi, acc, used):
+def _from_draws(prior, draws, mode, design, opts, hi, acc):
     flat = draws.reshape(-1, draws.shape[-1])
     k = flat.shape[1]
+    level, used = opts.level, opts.sampler
     lo_b, hi_b = np.zeros(k), np.full(k, hi)
     lower, upper = hpd_interval(flat, level, lo_b, hi_b)
     rhat = float(np.nanmax(split_rhat(draws))) if draws.shape[0] > 1 else float("nan")
-    if rhat > 1.1:
+    if rhat > opts.rhat_max:
         warnings.warn(
-            f"the {used} chains have not mixed: largest split R-hat {rhat:.3g} > 1.1; "
-            "increase n_samples/n_burn and treat sd and intervals with care",
+            f"the {used} chains have not mixed: largest split R-hat {rhat:.3g} > "
+            f"{opts.rhat_max:g}; increase n_samples/n_burn and treat sd and intervals with care",
             ConvergenceWarning,
             stacklevel=5,
         )
+    at = None
+    if np.isfinite(hi):
+        at = _warn_at_bound(upper >= hi, hi, f"{level:.0%} credible interval", 5)
     p_bright = np.mean(flat > 0, axis=0) if prior == "sparse" else None
     return ImageResult(
         prior=prior, directions=design.directions, mean=flat.mean(axis=0),
         mode=np.median(flat, axis=0) if prior == "sparse" else mode,
         sd=flat.std(axis=0, ddof=1), lower=lower, upper=upper, level=level, design=design,
         samples=draws, p_bright=p_bright, rhat=rhat, acceptance=acc, sampler=used,
+        i_max=float(hi) if np.isfinite(hi) else None, at_bound=at,
     )

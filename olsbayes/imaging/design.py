@@ -136,6 +136,11 @@ class Design:
         """Dimension K - rank of the null space."""
         return int(self.matrix.shape[1] - self.rank)
 
+    def __repr__(self) -> str:
+        n, k = self.matrix.shape
+        return (f"Design(N={n}, K={k}, rank={self.rank}, effective_rank={self.effective_rank}, "
+                f"condition={self.condition:.3g})")
+
 
 def analyse_design(
     matrix: np.ndarray, directions: np.ndarray, sigma: float, scale: float

@@ -6,9 +6,22 @@ Each prior carries exactly the settings it uses:
 * :class:`NonNegative` -- flat on ``I >= 0``.
 * :class:`Bounded` -- uniform on ``[0, i_max]``.
 * :class:`Sparse` -- spike-and-slab ``(1 - w) delta_0 + w U(0, i_max)`` with
-  ``w ~ Beta(a, b)``, so the data decide how sparse the scene is.
+  ``w ~ Beta(a, b)``, so the data decide how sparse the scene is.  Experimental:
+  not offered by name (:data:`PRIORS`) or on the command line, because its Gibbs
+  sampler does not mix on ill-posed scenes (see :data:`WITHDRAWN`); the object
+  is still accepted, and non-mixing chains are warned about.
 * :class:`TwoLevel` -- each intensity 0 or ``i_max``, bright with probability
   ``p_bright``; its MAP scene is found by a local search.
+
+**No silent clipping.**  An upper bound that is too low truncates the posterior
+and returns the bound with a tiny sd.  ``Bounded`` and ``Sparse`` therefore take
+``i_max=None`` by default, which :func:`~olsbayes.imaging.image` replaces by the
+bound :func:`data_bound` derives from the readings -- the same rule as the
+posterior's :func:`olsbayes.priors.data_intensity_bound`, with the known
+directions' gains -- and ``image`` warns
+(:class:`~olsbayes.errors.PriorBoundWarning`) whenever a posterior still piles
+up at ``i_max``.  The two-level prior's ``i_max`` is the intensity of a bright
+source, a model parameter rather than a bound, so it must be given.
 
 Every prior has a ``scale`` (intensity units): a direction of intensity space
 counts as measured when the readings pin it to better than ``scale``
@@ -20,6 +33,7 @@ is a field of theirs.
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 from dataclasses import dataclass
 from typing import ClassVar
@@ -38,6 +52,8 @@ __all__ = [
     "TwoLevel",
     "PRIORS",
     "as_prior",
+    "data_bound",
+    "with_data_bound",
 ]
 
 
@@ -113,22 +129,29 @@ class NonNegative(ImagingPrior):
 
 @dataclass(frozen=True)
 class _BoxPrior(ImagingPrior):
-    """A prior supported on ``[0, i_max]``."""
+    """A prior supported on ``[0, i_max]``; ``i_max=None``: derived from the readings."""
 
-    i_max: float = 1.0
+    i_max: float | None = None
 
     def __post_init__(self) -> None:
-        _set(self, "i_max", positive_float(f"{type(self).__name__}.i_max", self.i_max))
+        if self.i_max is not None:
+            _set(self, "i_max", positive_float(f"{type(self).__name__}.i_max", self.i_max))
+
+    def _bound(self) -> float:
+        if self.i_max is None:
+            raise InputError(f"{type(self).__name__}.i_max is not set yet: image() derives it "
+                             "from the readings (olsbayes.imaging.with_data_bound)")
+        return self.i_max
 
     @property
     def scale(self) -> float:
         """``i_max``."""
-        return self.i_max
+        return self._bound()
 
     @property
     def upper(self) -> float:
         """Upper bound of the support: ``i_max``."""
-        return self.i_max
+        return self._bound()
 
 
 @dataclass(frozen=True)
@@ -137,8 +160,9 @@ class Bounded(_BoxPrior):
 
     Attributes
     ----------
-    i_max : float
-        Upper bound of every intensity (> 0).
+    i_max : float or None
+        Upper bound of every intensity (> 0); None (default): derived from the
+        readings by :func:`data_bound`.
     """
 
     name: ClassVar[str] = "bounded"
@@ -153,8 +177,9 @@ class Sparse(_BoxPrior):
 
     Attributes
     ----------
-    i_max : float
-        Upper bound of the slab (> 0).
+    i_max : float or None
+        Upper bound of the slab (> 0); None (default): derived from the readings
+        by :func:`data_bound`.
     weight_prior : (float, float)
         Parameters ``(a, b)`` of the Beta hyperprior of ``w`` (both > 0;
         default uniform).
@@ -183,7 +208,7 @@ class TwoLevel(_BoxPrior):
     Attributes
     ----------
     i_max : float
-        Intensity of a bright source (> 0).
+        Intensity of a bright source (> 0); required.
     p_bright : float
         Prior probability that a source is bright, in (0, 1).
     """
@@ -192,6 +217,9 @@ class TwoLevel(_BoxPrior):
     p_bright: float = 0.5
 
     def __post_init__(self) -> None:
+        if self.i_max is None:
+            raise InputError("TwoLevel needs i_max, the intensity of a bright source (> 0): "
+                             "e.g. TwoLevel(i_max=1.0)")
         super().__post_init__()
         p = self.p_bright
         if isinstance(p, bool) or not isinstance(p, numbers.Real) or not 0 < p < 1:
@@ -200,19 +228,63 @@ class TwoLevel(_BoxPrior):
 
 
 _BY_NAME: dict[str, type[ImagingPrior]] = {
-    cls.name: cls for cls in (Gaussian, NonNegative, Bounded, Sparse, TwoLevel)
+    cls.name: cls for cls in (Gaussian, NonNegative, Bounded, TwoLevel)
 }
 #: Names accepted for ``prior`` (each means its prior with default settings).
 PRIORS: tuple[str, ...] = tuple(_BY_NAME)
+#: Prior names no longer offered, and why (the measured split R-hat).
+WITHDRAWN = {
+    "sparse": "its spike-and-slab Gibbs sampler does not mix on ill-posed scenes (largest "
+              "split R-hat 5.5 at 200 and 3.9 at 1000 draws per chain on the Fig. 2 "
+              "scene); olsbayes.imaging.Sparse remains for experiments",
+}
+
+
+def data_bound(matrix: np.ndarray, data: np.ndarray, sigma: float) -> float:
+    """Weakly informative intensity bound (> 0) from the readings and the design.
+
+    Every source adds a non-negative reading, so a source k of intensity I seen
+    with best sub-sensor gain ``g_k = max_n A[n, k]`` gives ``max(data) >= g_k I``
+    up to noise.  Returns ``2 (max(data) + 3 sigma) / min_k g_k``: twice the
+    largest intensity any direction's readings allow, the rule of
+    :func:`olsbayes.priors.data_intensity_bound` with the known gains.
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (N, K)
+        Design matrix (every column non-zero: every direction seen).
+    data : ndarray, shape (N,)
+    sigma : float
+        Noise sd of one reading.
+    """
+    gain = float(np.min(np.max(matrix, axis=0)))
+    top = max(float(np.max(data)), 0.0) + 3.0 * sigma
+    return 2.0 * top / gain
+
+
+def with_data_bound(prior: ImagingPrior, matrix: np.ndarray, data: np.ndarray,
+                    sigma: float) -> ImagingPrior:
+    """``prior`` with ``i_max`` set by :func:`data_bound` when it is None; else unchanged."""
+    if isinstance(prior, _BoxPrior) and prior.i_max is None:
+        return dataclasses.replace(prior, i_max=data_bound(matrix, data, sigma))
+    return prior
 
 
 def as_prior(prior: ImagingPrior | str) -> ImagingPrior:
-    """The prior object for a prior object or a name of :data:`PRIORS` (default settings)."""
-    if isinstance(prior, tuple(_BY_NAME.values())):
+    """The prior object for a prior object or a name of :data:`PRIORS` (default settings).
+
+    ``"two-level"`` has no default bright level: pass ``TwoLevel(i_max=...)``.
+    """
+    if isinstance(prior, (*_BY_NAME.values(), Sparse)):
         return prior
+    if isinstance(prior, str) and prior.lower() in WITHDRAWN:
+        raise InputError(f"prior {prior!r} is not offered: {WITHDRAWN[prior.lower()]}")
+    if isinstance(prior, str) and prior.lower() == "two-level":
+        raise InputError("prior 'two-level' needs the intensity of a bright source: pass "
+                         "TwoLevel(i_max=...) (its i_max is a model parameter, not a bound)")
     if isinstance(prior, str) and prior.lower() in _BY_NAME:
         return _BY_NAME[prior.lower()]()
     raise InputError(
         f"prior must be one of {', '.join(map(repr, PRIORS))} or a prior object "
-        f"(Gaussian, NonNegative, Bounded, Sparse, TwoLevel); got {prior!r}"
+        f"(Gaussian, NonNegative, Bounded, TwoLevel; Sparse, experimental); got {prior!r}"
     )

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -110,6 +112,12 @@ class ImageResult:
     search : BinaryMap or None
         Two-level prior: how the MAP search ended (log posterior, moves, local
         optimum, and the reference scene's log posterior when one was given).
+    i_max : float or None
+        Upper bound of the intensity prior actually used (given, or derived from
+        the readings); None for the Gaussian and nonnegative priors.
+    at_bound : ndarray of bool, shape (K,) or None
+        Directions whose posterior reaches ``i_max`` (the bound, not the data,
+        limits them; a warning was issued); None when there is no upper bound.
     """
 
     prior: str
@@ -128,6 +136,8 @@ class ImageResult:
     acceptance: float = 1.0
     sampler: str = "closed-form"
     search: BinaryMap | None = None
+    i_max: float | None = None
+    at_bound: np.ndarray | None = None
 
     @property
     def n_sources(self) -> int:
@@ -149,10 +159,35 @@ class ImageResult:
         t = np.asarray(truth, dtype=float)
         return (self.lower <= t) & (t <= self.upper)
 
-    def summary(self) -> dict:
-        """A JSON-ready dict of the scalar facts of the result."""
+    def summary(self):
+        """Table (pandas DataFrame), one row per direction (index ``source``).
+
+        Columns: the direction's coordinates (``theta``; ``lon``, ``lat``; or
+        ``x``, ``y``, ``z``), ``mean``, ``mode``, ``sd``, ``lower``, ``upper`` (the
+        credible interval at ``level``), ``null_fraction`` and, when defined,
+        ``p_bright`` and ``at_bound``.  The scalar facts are in :meth:`diagnostics`.
+        """
+        import pandas as pd
+
+        d = np.atleast_2d(np.asarray(self.directions, dtype=float))
+        if d.shape[0] != self.n_sources:
+            d = d.reshape(self.n_sources, -1)
+        coord = {1: ["theta"], 2: ["lon", "lat"], 3: ["x", "y", "z"]}.get(
+            d.shape[1], [f"loc{j}" for j in range(d.shape[1])])
+        cols = {name: d[:, j] for j, name in enumerate(coord)}
+        cols.update(mean=self.mean, mode=self.mode, sd=self.sd, lower=self.lower,
+                    upper=self.upper, null_fraction=self.null_fraction)
+        if self.p_bright is not None:
+            cols["p_bright"] = self.p_bright
+        if self.at_bound is not None:
+            cols["at_bound"] = self.at_bound
+        return pd.DataFrame(cols, index=pd.Index(np.arange(self.n_sources), name="source"))
+
+    def diagnostics(self) -> dict:
+        """A JSON-ready dict of the scalar facts of the result (design, sampler, search)."""
         return {
             "prior": self.prior,
+            "i_max": self.i_max,
             "n_sources": self.n_sources,
             "n_sensors": int(self.design.matrix.shape[0]),
             "rank": self.design.rank,
@@ -166,8 +201,34 @@ class ImageResult:
             "acceptance": self.acceptance,
             "sampler": self.sampler,
             "n_draws": 0 if self.samples is None else int(np.prod(self.samples.shape[:2])),
+            "n_at_bound": None if self.at_bound is None else int(np.sum(self.at_bound)),
             **self._search_summary(),
         }
+
+    def save(self, path: str | os.PathLike, *, data: np.ndarray | None = None,
+             seed: int | None = None) -> Path:
+        """Write the result (draws included) to a NetCDF file that :meth:`load` reads back.
+
+        ``data`` (the readings; their SHA-256 is recorded) and ``seed`` are
+        recorded with the package version and the command line.
+        """
+        from .._provenance import provenance
+        from .._store import save_result
+
+        return save_result(self, path, provenance(seed=seed, data=data))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> ImageResult:
+        """Read a result written by :meth:`save`."""
+        from .._store import load_result
+
+        return load_result(path, cls)
+
+    def __repr__(self) -> str:
+        bound = "" if self.i_max is None else f", i_max={self.i_max:.4g}"
+        rhat = "" if not np.isfinite(self.rhat) else f", rhat={self.rhat:.3g}"
+        return (f"ImageResult(prior={self.prior!r}{bound}, K={self.n_sources}, "
+                f"rank={self.rank}, sampler={self.sampler!r}{rhat})")
 
     def _search_summary(self) -> dict:
         if self.search is None:

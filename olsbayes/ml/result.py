@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -106,3 +108,59 @@ class MLResult:
 
     def __len__(self) -> int:
         return self.n_trials
+
+    def summary(self):
+        """Table (pandas DataFrame): estimate and Fisher sd per parameter.
+
+        One row per parameter (index ``parameter``, names as
+        :meth:`Model.param_names`), columns ``estimate`` and ``sd``; a batch fit
+        has a two-level index (``trial``, ``parameter``).  Angles in rad.
+        """
+        import pandas as pd
+
+        names = self.model.param_names(self.n_sources) if hasattr(self.model, "param_names") \
+            else [f"x[{i}]" for i in range(self.params.shape[-1])]
+        est, sd = np.atleast_2d(self.params), np.atleast_2d(self.std)
+        if not self.is_batch:
+            index = pd.Index(names, name="parameter")
+        else:
+            index = pd.MultiIndex.from_product([range(self.n_trials), names],
+                                               names=["trial", "parameter"])
+        return pd.DataFrame({"estimate": est.ravel(), "sd": sd.ravel()}, index=index)
+
+    def save(self, path: str | os.PathLike, *, data: np.ndarray | None = None,
+             seed: int | None = None) -> Path:
+        """Write the result to a NetCDF file that :meth:`load` reads back unchanged.
+
+        Parameters
+        ----------
+        path : path
+            The file (written atomically).
+        data : ndarray, optional
+            The readings fitted: their SHA-256 is recorded with the package version
+            and the command line.
+        seed : int, optional
+            The seed of the fit, recorded.
+        """
+        from .._provenance import provenance
+        from .._store import save_result
+
+        return save_result(self, path, provenance(seed=seed, data=data))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, *, model: Model | None = None) -> MLResult:
+        """Read a result written by :meth:`save`.
+
+        ``model`` is needed only for a model with a custom sensitivity law, which
+        cannot be stored.
+        """
+        from .._store import load_result
+
+        return load_result(path, cls, model=model)
+
+    def __repr__(self) -> str:
+        shape = f"trials={self.n_trials}, " if self.is_batch else ""
+        ll = np.asarray(self.log_likelihood)
+        ll_text = f"{float(ll):.6g}" if ll.ndim == 0 else f"[{ll.min():.6g} .. {ll.max():.6g}]"
+        return (f"MLResult(method={self.method!r}, K={self.n_sources}, {shape}"
+                f"log_likelihood={ll_text}, converged={bool(np.all(self.converged))})")

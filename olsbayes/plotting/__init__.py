@@ -1,4 +1,4 @@
-"""Figures (matplotlib, imported lazily): responses, corner plots, sky maps.
+"""Figures (matplotlib, imported lazily): responses, corner plots, sky maps, model checks.
 
 Each plotting function takes ``ax=`` or ``fig=`` and returns the figure.  The
 submodules import matplotlib only when a function is called, so importing this
@@ -16,6 +16,8 @@ __all__ = [
     "plot_sky",
     "plot_sphere_response",
     "plot_image_result",
+    "plot_ppc",
+    "plot_k_posterior",
 ]
 
 _LAZY = {
@@ -25,6 +27,8 @@ _LAZY = {
     "plot_sky": "skymap",
     "plot_sphere_response": "skymap",
     "plot_image_result": "skymap",
+    "plot_ppc": "checks",
+    "plot_k_posterior": "checks",
 }
 
 

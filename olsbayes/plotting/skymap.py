@@ -2,8 +2,12 @@
 
 Used for sphere responses (one value per sub-sensor) and imaging source maps
 (one value per known direction).  Values on a regular latitude-longitude grid
-are drawn as cells (``pcolormesh``), scattered directions as markers.
-matplotlib is imported when a function is called.
+are drawn as cells (``pcolormesh``), scattered directions as markers, in a
+perceptual colour map on a neutral grey background (so the brightest and the
+darkest cells both stand out), with a colour bar, longitude ticks every 90 degrees
+and latitude ticks every 30 (no overlap in small panels).  Imaging on a ring is
+drawn as intensity against direction angle instead.  matplotlib is imported when a
+function is called.
 """
 
 from __future__ import annotations
@@ -102,12 +106,17 @@ def plot_sky(
         art = ax.pcolormesh(elon, elat, z, shading="flat", **kw)
     else:
         art = ax.scatter(lon, lat, c=val, s=marker_size, marker="s", **kw)
+    ax.set_facecolor("0.82")
     if projection == "equirectangular":
         ax.set_xlim(-np.pi, np.pi)
         ax.set_ylim(-np.pi / 2, np.pi / 2)
         ax.set_aspect("equal")
         ax.set_xlabel("longitude (rad)")
         ax.set_ylabel("latitude (rad)")
+    else:
+        ax.set_xticks(np.deg2rad([-90, 0, 90]))
+        ax.set_yticks(np.deg2rad([-60, -30, 0, 30, 60]))
+        ax.tick_params(labelsize=7)
     ax.grid(True, alpha=0.3)
     fig.colorbar(art, ax=ax, shrink=0.7, label=label)
     if title:
@@ -158,8 +167,11 @@ def plot_image_result(
     matplotlib.figure.Figure
     """
     d = np.asarray(result.directions)
+    if d.ndim == 1 or (d.ndim == 2 and d.shape[1] == 1):
+        return _ring_image(result, truth, fig)
     if d.ndim != 2 or d.shape[1] != 2:
-        raise InputError("plot_image_result needs (longitude, latitude) directions (a sphere)")
+        raise InputError("plot_image_result needs ring angles or (longitude, latitude) "
+                         "directions; got near-source positions")
     import matplotlib.pyplot as plt
 
     panels = []
@@ -179,6 +191,38 @@ def plot_image_result(
                                  cmap="magma", label=label)
         else:
             plot_sky(d[:, 0], d[:, 1], val, ax=ax, projection=projection, title=title,
-                     cmap="gray" if kind == "src" else "viridis", label=label,
+                     cmap="viridis" if kind == "src" else "cividis", label=label,
                      vmin=0.0, vmax=vmax if kind == "src" else None)
+    return fig
+
+
+def _ring_image(result: Any, truth: np.ndarray | None, fig: Any) -> Any:
+    """Ring imaging: posterior mean with its credible interval (and the truth) per angle."""
+    import matplotlib.pyplot as plt
+
+    theta = wrap_angle(np.asarray(result.directions, dtype=float).ravel())
+    order = np.argsort(theta)
+    fig = fig or plt.figure(figsize=(7.0, 3.6), layout="constrained")
+    ax = fig.add_subplot(1, 1, 1)
+    mean = np.asarray(result.mean, dtype=float)
+    lo, hi = np.asarray(result.lower, float), np.asarray(result.upper, float)
+    if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+        err = np.vstack([mean - lo, hi - mean])[:, order]
+        ax.errorbar(theta[order], mean[order], yerr=np.maximum(err, 0.0), fmt="o", ms=4,
+                    capsize=2, color="tab:blue",
+                    label=f"posterior mean, {result.level:.0%} interval ({result.prior})")
+    else:
+        ax.plot(theta[order], mean[order], "o", ms=4, color="tab:blue",
+                label=f"estimate ({result.prior}, {result.sampler})")
+    if truth is not None:
+        ax.plot(theta[order], np.asarray(truth, float)[order], "x", ms=7, color="tab:red",
+                label="truth")
+    if getattr(result, "i_max", None) is not None:
+        ax.axhline(result.i_max, color="0.5", ls="--", lw=0.8, label="prior bound i_max")
+    ax.set_xlabel("source direction (rad)")
+    ax.set_ylabel("intensity")
+    ax.set_xlim(-np.pi, np.pi)
+    ax.set_ylim(bottom=0.0)
+    ax.legend(loc="best", fontsize="small")
+    ax.set_title(f"imaging {theta.size} directions: rank {result.rank}")
     return fig

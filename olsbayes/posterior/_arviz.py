@@ -9,6 +9,16 @@ Variables of a posterior ``InferenceData``: one per coordinate role with a
 of the readings) -- plus a scalar ``sigma`` when the noise is inferred.  ArviZ
 labels their entries ``theta[0]``, ``I[1]``, ... exactly as
 ``Model.param_names`` does.
+
+**Angles are stored unwrapped** around their circular means (each draw within
+pi of the mean, so a source at +-pi has one continuous distribution), with the
+attributes ``circular = 1``, ``units = "rad"`` and ``period``.  Plain
+``arviz.summary(idata)`` and ``corner.corner(idata)`` therefore see the right
+spread; ``arviz.summary(idata, circ_var_names=["theta"])`` gives the circular
+statistics instead.  Wrap to (-pi, pi] with ``pi - mod(pi - x, 2 pi)``.  Every
+variable carries ``units`` and ``long_name``; every group carries
+``inference_library`` (emcee), ``inference_library_version``,
+``olsbayes_version`` and the run's provenance (seed, data hash, command line).
 """
 
 from __future__ import annotations
@@ -27,6 +37,8 @@ from ..errors import InputError
 __all__ = [
     "import_arviz",
     "split_names",
+    "unwrap_periodic",
+    "wrap_periodic",
     "to_inference_data",
     "posterior_array",
     "summary_frame",
@@ -73,6 +85,57 @@ def split_names(names: list[str]) -> list[tuple[str, int | None]]:
     return out
 
 
+#: Units and long names of the posterior variables.
+_UNITS = {"theta": ("rad", "source direction (ring angle)"),
+          "lon": ("rad", "source longitude"), "lat": ("rad", "source latitude"),
+          "x": ("length unit of the array", "source position x"),
+          "y": ("length unit of the array", "source position y"),
+          "z": ("length unit of the array", "source height z above the plate"),
+          "I": ("reading units", "source intensity"),
+          "sigma": ("reading units", "noise sd of one sub-sensor")}
+_TWO_PI = 2.0 * np.pi
+
+
+def unwrap_periodic(draws: np.ndarray, centre: np.ndarray, periodic: np.ndarray) -> np.ndarray:
+    """Draws (..., P) with periodic columns shifted by whole turns to within pi of ``centre``.
+
+    Exact for draws already within pi of the centre (only whole turns of 2 pi are
+    added), so :func:`wrap_periodic` gives the original draws back bit for bit there.
+    """
+    out = np.array(draws, dtype=float)
+    if np.any(periodic):
+        x = out[..., periodic]
+        turns = np.rint((np.asarray(centre, dtype=float)[periodic] - x) / _TWO_PI)
+        out[..., periodic] = np.where(turns == 0, x, x + _TWO_PI * turns)
+    return out
+
+
+def wrap_periodic(draws: np.ndarray, periodic: np.ndarray) -> np.ndarray:
+    """Periodic columns of draws (..., P) wrapped to (-pi, pi] by whole turns (exact inside)."""
+    out = np.array(draws, dtype=float)
+    if np.any(periodic):
+        x = out[..., periodic]
+        turns = -np.floor((np.pi - x) / _TWO_PI)
+        out[..., periodic] = np.where(turns == 0, x, x - _TWO_PI * turns)
+    return out
+
+
+def _variable_attrs(idata, periodic_names: set[str]) -> None:
+    """units / long_name on every posterior and prior variable; circular flags on angles."""
+    for group in ("posterior", "prior"):
+        if group not in idata.groups():
+            continue
+        ds = getattr(idata, group)
+        for name in ds.data_vars:
+            units, long_name = _UNITS.get(name, ("", name))
+            ds[name].attrs.update(units=units, long_name=long_name)
+            if name in periodic_names:
+                ds[name].attrs.update(
+                    circular=1, period=_TWO_PI,
+                    storage=("unwrapped around the circular mean" if group == "posterior"
+                             else "wrapped to (-pi, pi]"))
+
+
 def _by_variable(values: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
     """(chain, draw, P) -> {base: (chain, draw[, source])} in layout order."""
     groups: dict[str, list[int]] = {}
@@ -87,6 +150,29 @@ def _by_variable(values: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
     return out
 
 
+def _dims_coords(post: dict, names: list[str], constants: dict, n_sensors: int,
+                 n_walkers: int) -> tuple[dict, dict]:
+    """Named dims and coordinates of every variable (see :func:`to_inference_data`)."""
+    k = max((i + 1 for _, i in split_names(names) if i is not None), default=0)
+    p = len(names)
+    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
+    dims.update({"obs": ["sensor"], "normals": ["sensor", "axis"],
+                 "positions": ["sensor", "axis"]})
+    for key, value in constants.items():
+        shape = np.shape(value)
+        if key not in dims and shape == (p,):
+            dims[key] = ["parameter"]
+        elif key not in dims and shape == (p, p):
+            dims[key] = ["parameter", "parameter_bis"]
+        elif key not in dims and len(shape) == 1 and shape[0] == n_walkers:
+            dims[key] = ["walker"]
+    n_axis = np.shape(constants["normals"])[-1] if "normals" in constants else 0
+    coords = {"source": np.arange(k), "sensor": np.arange(n_sensors),
+              "parameter": list(names), "parameter_bis": list(names),
+              "axis": ["x", "y", "z"][:n_axis], "walker": np.arange(n_walkers)}
+    return dims, coords
+
+
 def to_inference_data(
     draws: np.ndarray,
     names: list[str],
@@ -98,6 +184,9 @@ def to_inference_data(
     data: np.ndarray,
     constants: dict[str, np.ndarray],
     attrs: dict[str, object],
+    periodic: np.ndarray,
+    centre: np.ndarray,
+    predictive: np.ndarray | None = None,
     prior_draws: np.ndarray | None = None,
 ):
     """Assemble an ``arviz.InferenceData``.
@@ -115,23 +204,29 @@ def to_inference_data(
         Per-sub-sensor log-likelihood.
     data : ndarray (N,)
     constants : dict
-        ``constant_data`` arrays; ``normals`` (N, D) gets dims (sensor, axis).
+        ``constant_data`` arrays: ``normals``/``positions`` (N, D) get dims
+        (sensor, axis); (P,) arrays dim ``parameter``, (P, P) arrays dims
+        (``parameter``, ``parameter_bis``), (W,) arrays dim ``walker``.
     attrs : dict
-        Written into every group's attributes (strings and numbers only).
+        Written into the attributes of every group and of the file (strings and
+        numbers only).
+    periodic : ndarray of bool (P,)
+        Angles, stored unwrapped around ``centre`` (see the module notes).
+    centre : ndarray (P,)
+        The circular means of the angles.
+    predictive : ndarray (chain, draw, N), optional
+        Posterior predictive readings: the ``posterior_predictive`` group (``obs``).
     prior_draws : ndarray (1, draw, P), optional
         Independent draws from the prior (raw, exchangeable labels): the
         ``prior`` group.
     """
     az = import_arviz()
-    post = _by_variable(draws, names)
-    k = max((i + 1 for _, i in split_names(names) if i is not None), default=0)
-    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
-    dims.update({"obs": ["sensor"], "normals": ["sensor", "axis"],
-                 "positions": ["sensor", "axis"]})
-    coords = {"source": np.arange(k), "sensor": np.arange(data.shape[-1])}
+    post = _by_variable(unwrap_periodic(draws, centre, periodic), names)
+    dims, coords = _dims_coords(post, names, constants, data.shape[-1], draws.shape[0])
     with _known_shapes():
-        return az.from_dict(
+        idata = az.from_dict(
             posterior=post,
+            posterior_predictive=None if predictive is None else {"obs": predictive},
             sample_stats={"lp": log_posterior, "log_prior": log_prior,
                           "acceptance_rate": accepted.astype(float)},
             log_likelihood={"obs": pointwise},
@@ -142,10 +237,19 @@ def to_inference_data(
             dims=dims,
             attrs=attrs,
         )
+    for group in idata.groups():  # ArviZ keeps ``attrs`` on the object; groups need them
+        getattr(idata, group).attrs.update(attrs)
+    angles = {base for (base, _), per in zip(split_names(names), periodic) if per}
+    _variable_attrs(idata, angles)
+    for group in ("observed_data", "posterior_predictive"):
+        if group in idata.groups():
+            getattr(idata, group)["obs"].attrs.update(units="reading units",
+                                                       long_name="sub-sensor reading")
+    return idata
 
 
 def posterior_array(idata, names: list[str]) -> np.ndarray:
-    """The posterior as one (chain, draw, P) array in layout order."""
+    """The posterior as one (chain, draw, P) array in layout order (angles as stored)."""
     post = idata.posterior
     cols = []
     for base, idx in split_names(names):

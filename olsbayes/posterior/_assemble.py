@@ -1,4 +1,11 @@
-"""From an emcee chain to the stored posterior: burn-in, thinning, relabelling, InferenceData."""
+"""From an emcee chain to the stored posterior: burn-in, thinning, relabelling, InferenceData.
+
+Sources are labelled as in the walkers' starting point (the ML estimate by
+default, in canonical order), so the posterior's ``theta[0]`` is the ML table's
+source 0 (:mod:`olsbayes.posterior._labels`).  The InferenceData also gets the
+posterior predictive readings -- one noisy replicate of the readings per stored
+draw, drawn from the same stream as the prior draws, after them.
+"""
 
 from __future__ import annotations
 
@@ -11,9 +18,11 @@ from ..priors import ScenePrior
 from ._arviz import to_inference_data
 from ._labels import block_index, dominant_permutation, relabel
 from ._logpost import LogPosterior
+from .audit import at_prior_bound
 from .options import SamplerOptions
 
-__all__ = ["assemble", "crlb_covariance", "MAX_STORED_DRAWS", "PRIOR_DRAWS"]
+__all__ = ["assemble", "crlb_covariance", "predictive_draws", "MAX_STORED_DRAWS",
+           "PRIOR_DRAWS"]
 
 #: Draws kept per walker at most (further thinning beyond this), bounds memory.
 MAX_STORED_DRAWS = 5000
@@ -41,14 +50,32 @@ def _point_estimate(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
     return estimate
 
 
+def predictive_draws(model: Model, prior: ScenePrior, x: np.ndarray,
+                     gen: np.random.Generator) -> np.ndarray:
+    """Replicated readings (..., N): the response of every draw x (..., P) plus noise.
+
+    The noise sd is the draw's ``sigma`` when it is inferred, else ``model.sigma``.
+    """
+    p_model = model.n_params(prior.n_sources)
+    flat = x.reshape(-1, x.shape[-1])
+    mu = model.response(flat[:, :p_model]) if p_model else np.zeros((flat.shape[0],
+                                                                      model.n_sensors))
+    sd = flat[:, -1:] if prior.noise is not None else model.sigma
+    rep = mu + sd * gen.standard_normal(mu.shape)
+    return rep.reshape(x.shape[:-1] + (model.n_sensors,))
+
+
 def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
              centre: np.ndarray | None, options: SamplerOptions,
-             gen_prior: np.random.Generator) -> dict:
+             gen_prior: np.random.Generator, run_attrs: dict | None = None) -> dict:
     """The fields of a :class:`~olsbayes.posterior.PosteriorResult` from a finished sampler.
 
-    All fields but ``converged``, ``elapsed`` and ``n_evaluations``.
+    All fields but ``converged``, ``elapsed``, ``n_evaluations``, ``seed`` and ``provenance``;
+    ``run_attrs`` (provenance) are written into the InferenceData's attributes.
     """
     import emcee
+
+    from .._version import __version__
 
     prior = logpost.prior
     chain = sampler.get_chain()  # (steps, W, P) sampler coordinates
@@ -64,28 +91,36 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     periodic_loc = prior.periodic[:w] if prior.n_sources else np.zeros(w, bool)
     switch = 0.0
     if options.relabel_sources:
-        x, perms = relabel(x, prior.n_sources, periodic_loc, lpost)
+        x, perms = relabel(x, prior.n_sources, periodic_loc, lpost, anchor=centre)
         perm, switch = dominant_permutation(perms)
         tau = tau[block_index(perm, w, prior.n_params)]  # tau of the relabelled parameters
     estimate = _point_estimate(x, prior)
     crlb_cov = crlb_covariance(model, prior, estimate)
-    constants = {"normals": model.array.normals, "crlb_cov": crlb_cov, "estimate": estimate}
+    acceptance = np.asarray(sampler.acceptance_fraction)
+    constants = {"normals": model.array.normals, "crlb_cov": crlb_cov, "estimate": estimate,
+                 "tau": tau, "acceptance_fraction": acceptance}
+    if centre is not None:
+        constants["start"] = centre
     if model.array.positions is not None:
         constants["positions"] = model.array.positions
     if prior.noise is None:
         constants["sigma"] = np.array(model.sigma)
-    attrs = {"sampler": "emcee", "emcee_version": emcee.__version__, "kind": model.kind,
+    attrs = {"inference_library": "emcee", "inference_library_version": emcee.__version__,
+             "olsbayes_version": __version__, "kind": model.kind,
              "n_sources": prior.n_sources, "n_burn": n_burn, "thin": thin, "n_steps": n_steps,
-             "parameter_names": " ".join(prior.param_names)}
+             "parameter_names": " ".join(prior.param_names),
+             **{k: v for k, v in (run_attrs or {}).items() if v is not None}}
+    prior_draws = prior.sample((1, PRIOR_DRAWS), rng=gen_prior)
     idata = to_inference_data(
         x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),
         accepted=moved.T, pointwise=logpost.pointwise(x), data=data, constants=constants,
-        attrs=attrs, prior_draws=prior.sample((1, PRIOR_DRAWS), rng=gen_prior))
+        attrs=attrs, periodic=prior.periodic, centre=estimate,
+        predictive=predictive_draws(model, prior, x, gen_prior), prior_draws=prior_draws)
     return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,
                 names=tuple(prior.param_names), estimate=estimate, crlb_cov=crlb_cov,
                 start=centre, tau=tau, n_steps=n_steps, n_burn=n_burn, thin=thin,
-                acceptance_fraction=np.asarray(sampler.acceptance_fraction),
-                switch_fraction=switch)
+                acceptance_fraction=acceptance, switch_fraction=switch,
+                at_bound=at_prior_bound(x, prior) if options.use_likelihood else ())
 
 
 def crlb_covariance(model: Model, prior: ScenePrior, x: np.ndarray) -> np.ndarray:

@@ -4,15 +4,24 @@ The posterior of K exchangeable sources has K! symmetric copies.  Ordering by
 the raw angle (theta_1 < theta_2) breaks on a circle: a source wandering over
 +-pi jumps from first to last.  Here the labels are fixed in two steps:
 
-1. a **canonical reference**: the highest-posterior draw, its sources put in
-   cyclic order starting from a pivot angle -- the middle of the largest gap
-   between all sampled source directions (ring angle, or sphere longitude), so
-   no source sits at the pivot -- or in (x, y, z) order for a plate;
+1. a **reference**: the *anchor* when one is given -- the point the walkers
+   started from, by default the maximum-likelihood estimate -- with its sources
+   in the canonical order of :meth:`olsbayes.Model.canonical` (first location
+   coordinate, angles wrapped to (-pi, pi]); without an anchor, the
+   highest-posterior draw, its sources put in cyclic order from a pivot angle
+   (the middle of the largest gap between all sampled source directions) or in
+   (x, y, z) order for a plate;
 2. **nearest-permutation relabelling** (Stephens 2000; Marin et al. 2005):
    every draw takes the permutation of its sources closest to the reference,
    the distance being a sum of squared standardised coordinate differences
    with *circular* differences for periodic coordinates; the reference is then
    replaced by the per-source means and scales and the step repeated.
+
+Label j is then the posterior source matched to source j of the anchor, so a
+posterior table, file or plot lists its sources exactly as the ML table does,
+whatever the seed or the run length.  Without an anchor the final sources are
+put in the canonical order of their (circular) means; only a source whose mean
+sits at +-pi can then be listed first or last depending on the draws.
 
 This works for any geometry because distances, not orderings, decide.
 """
@@ -24,7 +33,8 @@ import numpy as np
 from ..circular import circular_mean, largest_gap_cut, wrap_angle
 from ..exchange import best_permutation, pair_costs
 
-__all__ = ["relabel", "reference_order", "dominant_permutation", "block_index"]
+__all__ = ["relabel", "reference_order", "canonical_order", "dominant_permutation",
+           "block_index"]
 
 
 def _diff(a: np.ndarray, b: np.ndarray, periodic: np.ndarray) -> np.ndarray:
@@ -45,6 +55,16 @@ def reference_order(blocks: np.ndarray, periodic: np.ndarray, pivot: float) -> n
     return np.lexsort(blocks[:, :-1].T[::-1])
 
 
+def canonical_order(blocks: np.ndarray, periodic: np.ndarray) -> np.ndarray:
+    """Permutation (K,) putting sources (K, w) in the order of :meth:`Model.canonical`.
+
+    Sorted by the first location coordinate, wrapped to (-pi, pi] when periodic
+    (a stable sort: ties keep their order).
+    """
+    key = wrap_angle(blocks[:, 0]) if periodic[0] else blocks[:, 0]
+    return np.argsort(key, kind="stable")
+
+
 def _mean_scale(blocks: np.ndarray, periodic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-source (circular) means and sds, each (K, w), of blocks (S, K, w)."""
     mean = blocks.mean(axis=0)
@@ -61,6 +81,8 @@ def relabel(
     periodic_loc: np.ndarray,
     log_post: np.ndarray | None = None,
     n_iter: int = 3,
+    *,
+    anchor: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Relabel draws of K exchangeable sources.
 
@@ -76,6 +98,11 @@ def relabel(
         Log posterior of each draw; its argmax is the reference draw.
     n_iter : int
         Reference-update iterations.
+    anchor : ndarray (P,) or (K (d + 1),), optional
+        A point in the flat layout (the walkers' starting point, the ML estimate
+        by default); its sources, in canonical order, are the first reference
+        and fix the final labels.  None: the highest-posterior draw, and the
+        final sources in canonical order of their means.
 
     Returns
     -------
@@ -92,9 +119,13 @@ def relabel(
         return x.copy(), ident
     blocks = flat[:, : k * w].reshape(-1, k, w)
     periodic = np.asarray(periodic_loc, dtype=bool)
-    pivot = largest_gap_cut(blocks[:, :, 0]) if periodic[0] else 0.0
-    best = 0 if log_post is None else int(np.nanargmax(np.ravel(log_post)))
-    ref = blocks[best][reference_order(blocks[best], periodic, pivot)]
+    if anchor is not None:
+        ref = np.asarray(anchor, dtype=float)[: k * w].reshape(k, w)
+        ref = ref[canonical_order(ref, periodic)]
+    else:
+        pivot = largest_gap_cut(blocks[:, :, 0]) if periodic[0] else 0.0
+        best = 0 if log_post is None else int(np.nanargmax(np.ravel(log_post)))
+        ref = blocks[best][reference_order(blocks[best], periodic, pivot)]
     _, scale = _mean_scale(blocks, periodic)
     scale = np.broadcast_to(np.maximum(scale.mean(axis=0), 1e-300), (k, w))
     for _ in range(max(1, n_iter)):
@@ -102,8 +133,8 @@ def relabel(
         ordered = np.take_along_axis(blocks, perm[:, :, None], axis=1)
         ref, scale = _mean_scale(ordered, periodic)
         scale = np.maximum(scale, 1e-12 * np.maximum(scale.max(axis=0), 1e-300))
-    order = reference_order(ref, periodic, pivot)
-    perm = perm[:, order]
+    if anchor is None:  # labels follow the anchor's sources when there is one
+        perm = perm[:, canonical_order(ref, periodic)]
     out = flat.copy()
     out[:, : k * w] = np.take_along_axis(blocks, perm[:, :, None], axis=1).reshape(-1, k * w)
     return out.reshape(x.shape), perm.reshape(lead + (k,))

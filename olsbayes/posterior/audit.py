@@ -11,7 +11,7 @@ from ..bounds import kink_sources
 from ..circular import wrap_angle
 from ._arviz import summary_frame
 
-__all__ = ["summary", "crlb_check", "CRLBCheck"]
+__all__ = ["summary", "crlb_check", "CRLBCheck", "at_prior_bound", "BOUND_LEVEL"]
 
 class PosteriorDraws(Protocol):
     """What the audit reads of a posterior (a :class:`~olsbayes.posterior.PosteriorResult`).
@@ -51,6 +51,68 @@ KINK_SDS = 2.0
 #: CRLB |correlation| above which two parameters count as strongly correlated (between
 #: two sources: near the resolution limit).
 HIGH_CORRELATION = 0.9
+
+
+#: R-hat above which a parameter counts as poorly mixed: the default
+#: ``SamplerOptions.rhat_max`` and ``ImageOptions.rhat_max``, one threshold everywhere.
+RHAT_MAX = 1.01
+#: Credibility of the highest-density interval that, reaching a prior bound, counts as
+#: the posterior piling up there (the level of the summary's HDI).
+BOUND_LEVEL = 0.94
+
+
+def _physical_bound(name: str, bound: float) -> bool:
+    """Bounds set by physics, not by the prior: I >= 0, z >= 0, |lat| <= pi/2."""
+    base = name.split("[", 1)[0]
+    return (base in ("I", "z") and bound == 0.0) or (
+        base == "lat" and abs(bound) >= np.pi / 2 - 1e-9)
+
+
+def _hdi_reaches(x: np.ndarray, lo: float, hi: float, level: float) -> tuple[bool, bool]:
+    """Whether the shortest ``level`` interval of draws x (S,) reaches ``lo`` / ``hi``.
+
+    An end counts when fewer than a tenth of the excluded draws lie beyond it
+    (the density is highest at that edge) and the extreme draw lies within 5 % of
+    the interval's width from the bound.
+    """
+    s = np.sort(x)
+    n = s.size
+    m = max(1, int(np.ceil(level * n)))
+    start = int(np.argmin(s[m - 1:] - s[: n - m + 1]))
+    width = s[start + m - 1] - s[start]
+    edge = 0.1 * (n - m)
+    low = start <= edge and s[0] - lo <= 0.05 * width
+    high = n - m - start <= edge and hi - s[-1] <= 0.05 * width
+    return bool(low), bool(high)
+
+
+def at_prior_bound(draws: np.ndarray, prior, level: float = BOUND_LEVEL) -> tuple[str, ...]:
+    """Names of the parameters whose posterior piles up at a bound of their prior.
+
+    Parameters
+    ----------
+    draws : ndarray (..., P)
+        Posterior draws in the flat layout.
+    prior : ScenePrior
+    level : float
+        Credibility of the highest-density interval tested: a parameter is listed
+        when that interval reaches a finite prior bound (``_hdi_reaches``).
+        Physical bounds (intensity or plate height 0, latitude +-pi/2) and
+        periodic coordinates are not tested.
+    """
+    flat = np.asarray(draws, dtype=float).reshape(-1, prior.n_params)
+    out = []
+    for j, (name, marg) in enumerate(zip(prior.param_names, prior.marginals)):
+        if marg.periodic or flat.shape[0] < 2:
+            continue
+        lo, hi = float(marg.lower), float(marg.upper)
+        test_lo = np.isfinite(lo) and not _physical_bound(name, lo)
+        test_hi = np.isfinite(hi) and not _physical_bound(name, hi)
+        if test_lo or test_hi:
+            low, high = _hdi_reaches(flat[:, j], lo, hi, level)
+            if (test_lo and low) or (test_hi and high):
+                out.append(name)
+    return tuple(out)
 
 
 def summary(result: PosteriorDraws, hdi_prob: float = 0.94):
@@ -102,7 +164,7 @@ class CRLBCheck:
         source or with sigma, e.g. a plate's z and I); ``low SNR`` (I / CRLB sd
         of I < 10 for the source); ``near the kink`` (a sub-sensor horizon
         within 2 CRLB sd of the direction); ``poor mixing`` (bulk ESS < 100 or
-        R-hat > 1.05).
+        R-hat > 1.01, the sampler's own convergence threshold).
     """
 
     names: tuple[str, ...]
@@ -167,7 +229,7 @@ def _reasons(result: PosteriorDraws, table, crlb_sd: np.ndarray) -> list[list[st
             out[j].append("low SNR")
         if src is not None and kink[src]:
             out[j].append("near the kink (a sub-sensor horizon within 2 sd)")
-        if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > 1.05:
+        if table["ess_bulk"].iloc[j] < 100 or table["r_hat"].iloc[j] > RHAT_MAX:
             out[j].append("poor mixing")
     return out
 

@@ -7,8 +7,9 @@ import warnings
 
 import numpy as np
 
+from .._provenance import draw_seed, provenance, seed_of
 from .._validation import as_rng, integer
-from ..errors import ConvergenceWarning, InputError
+from ..errors import ConvergenceWarning, InputError, PriorBoundWarning
 from ..model import Model
 from ..priors import ScenePrior, default_priors
 from ._assemble import assemble
@@ -107,13 +108,17 @@ def sample(
         Number of walkers, run length and stopping rule, burn-in, thinning, moves;
         default ``SamplerOptions()``.
     rng : Generator or int, optional
-        The same rng gives identical chains.
+        The same rng gives identical chains.  None: a seed is drawn from the
+        system's entropy and recorded (``result.seed``), so the run can be repeated.
     progress : bool
         Show emcee's progress bar.
 
     Returns
     -------
     PosteriorResult
+        Sources labelled as in the starting point (the ML estimate's canonical
+        order by default).  A :class:`~olsbayes.errors.PriorBoundWarning` is issued
+        when a posterior piles up at a prior bound (``result.at_bound``).
     """
     data, k = _check_scene(model, data, n_sources)
     prior = _check_prior(model, k, priors, data)
@@ -121,7 +126,11 @@ def sample(
     start = check_start(model, prior, start, n_walkers)
     if not isinstance(progress, (bool, np.bool_)):
         raise InputError(f"progress must be True or False; got {progress!r}")
+    if rng is None:
+        rng = draw_seed()
+    seed = seed_of(rng)
     gen_ml, gen_ball, gen_mc, gen_prior = as_rng(rng).spawn(4)
+    record = provenance(seed=rng, data=data)
 
     walkers, centre = initial_walkers(model, data, prior, start, n_walkers, gen_ml, gen_ball)
     logpost = LogPosterior(model, data, prior, cut_shift(prior, walkers),
@@ -131,7 +140,7 @@ def sample(
     t0 = time.perf_counter()
     converged = run_ensemble(sampler, z0, logpost, options, bool(progress))
     elapsed = time.perf_counter() - t0
-    fields = assemble(model, data, logpost, sampler, centre, options, gen_prior)
+    fields = assemble(model, data, logpost, sampler, centre, options, gen_prior, record)
     max_tau = float(np.max(fields["tau"]))
     if options.n_steps is not None:
         converged = bool(options.n_steps >= options.tau_multiple * max_tau)
@@ -144,8 +153,17 @@ def sample(
             ConvergenceWarning,
             stacklevel=2,
         )
+    if fields["at_bound"]:
+        warnings.warn(
+            f"the posterior of {', '.join(fields['at_bound'])} piles up at a bound of its "
+            "prior: the prior, not the data, limits it; widen the prior (e.g. a larger "
+            "i_max) or leave priors=None for bounds derived from the data",
+            PriorBoundWarning,
+            stacklevel=2,
+        )
     return PosteriorResult(converged=converged, elapsed=elapsed,
-                           n_evaluations=logpost.n_calls, **fields)
+                           n_evaluations=logpost.n_calls, seed=seed, provenance=record,
+                           **fields)
 
 
 def _check_scene(model: object, data: object, n_sources: object) -> tuple[np.ndarray, int]:

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
@@ -74,6 +76,11 @@ class KEvidence:
     fit: Any = None
     origin: str = ""
 
+    def __repr__(self) -> str:
+        err = "" if not np.isfinite(self.error) else f" +- {self.error:.3g}"
+        return (f"KEvidence(k={self.k}, log_evidence={self.log_evidence:.6g}{err}, "
+                f"method={self.method!r}, trusted={self.trusted})")
+
 
 @dataclass(frozen=True, eq=False)
 class SelectionResult:
@@ -137,6 +144,53 @@ class SelectionResult:
                 return ev
         raise KeyError(f"no candidate with K = {k}; candidates are {list(self.ks)}")
 
+    def summary(self):
+        """Table (pandas DataFrame), one row per candidate K (index ``k``).
+
+        Columns ``log_evidence``, ``error`` (nats), ``method``, ``log_prior_k``,
+        ``probability`` (p(K | data)), ``log_bayes_factor`` (against the chosen
+        K), ``log_likelihood``, ``laplace``, ``trusted``, ``origin``, ``note``
+        and ``best`` (the chosen K).
+        """
+        import pandas as pd
+
+        return pd.DataFrame({
+            "log_evidence": self.log_evidence, "error": self.error,
+            "method": [ev.method for ev in self.evidences],
+            "log_prior_k": self.log_prior_k, "probability": self.probabilities,
+            "log_bayes_factor": self.log_bayes_factors,
+            "log_likelihood": [ev.log_likelihood for ev in self.evidences],
+            "laplace": [ev.laplace for ev in self.evidences],
+            "trusted": [bool(ev.trusted) for ev in self.evidences],
+            "origin": [ev.origin for ev in self.evidences],
+            "note": ["; ".join(ev.reasons) for ev in self.evidences],
+            "best": [int(ev.k) == int(self.best) for ev in self.evidences],
+        }, index=pd.Index([int(k) for k in self.ks], name="k"))
+
+    def save(self, path: str | os.PathLike, *, data: np.ndarray | None = None,
+             seed: int | None = None) -> Path:
+        """Write the result (fits included) to a NetCDF file that :meth:`load` reads back.
+
+        ``data`` (the readings; their SHA-256 is recorded) and ``seed`` are
+        recorded with the package version and the command line.
+        """
+        from .._provenance import provenance
+        from .._store import save_result
+
+        return save_result(self, path, provenance(seed=seed, data=data))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, *, model: Any = None) -> SelectionResult:
+        """Read a result written by :meth:`save` (``model``: see :meth:`MLResult.load`)."""
+        from .._store import load_result
+
+        return load_result(path, cls, model=model)
+
+    def __repr__(self) -> str:
+        p = float(self.probabilities[list(self.ks).index(self.best)])
+        return (f"SelectionResult(best={self.best}, p(best | data)={p:.3g}, "
+                f"K=0..{int(self.ks[-1])}, method={self.method!r})")
+
     def table(self) -> str:
         """Plain-text table: K, log Z, error, method, p(K | data), notes."""
         head = f"{'K':>2}  {'log Z':>12}  {'+-':>7}  {'method':<11}  {'p(K|data)':>9}  note"
@@ -176,6 +230,7 @@ class SelectionResult:
                     "laplace": _num(ev.laplace),
                     "trusted": bool(ev.trusted),
                     "reasons": list(ev.reasons),
+                    "names": _names(ev),
                     "params": [float(v) for v in ev.params],
                     "origin": ev.origin,
                     "n_calls": int(ev.n_calls),
@@ -184,6 +239,14 @@ class SelectionResult:
                 for ev, p, lp in zip(self.evidences, self.probabilities, self.log_prior_k)
             ],
         }
+
+
+def _names(ev: KEvidence) -> list[str] | None:
+    """Parameter names of a candidate's ``params`` (from its fit's model), None if unknown."""
+    if ev.k == 0:
+        return []
+    model = getattr(ev.fit, "model", None)
+    return list(model.param_names(ev.k)) if hasattr(model, "param_names") else None
 
 
 def _num(x: float) -> float | None:

@@ -182,18 +182,60 @@ def test_fit_posterior_report(tmp_path, capsys):
                for line in err.strip().splitlines())
 
 
-def test_fit_posterior_table_lists_sources_in_the_ml_tables_order():
-    """The posterior's own labels (cyclic from a pivot) may differ from the ML table's
-    (sorted angles); the printed posterior rows follow the ML table's k."""
-    from olsbayes.cli.fit import _ml_table_order
+def test_fit_posterior_uses_the_ml_order_in_every_output(tmp_path, capsys):
+    """Sources pi apart: the text, the JSON posterior block (with names), summary.csv,
+    summary.json and posterior.nc list the sources in the ML table's order; the seed,
+    data hash and version are recorded."""
+    import csv
 
-    model = Model(Ring(30), 0.01)
-    estimate = np.array([0.37, 1.0, -2.77, 0.2, 0.011])  # posterior labels; then sigma
-    pairs = _ml_table_order(model, estimate, 2)
-    assert pairs == [(0, 2), (0, 3), (1, 0), (1, 1), ("-", 4)]
-    ml = model.canonical(estimate[:4]).reshape(2, 2)
-    for k_ml, i in pairs[:4]:
-        assert estimate[i] == pytest.approx(ml[k_ml, i % 2], abs=1e-15)
+    from olsbayes.posterior import PosteriorResult
+
+    rep = tmp_path / "rep"
+    code, out, err = run_cli(capsys, "fit", "--report", str(rep), "--seed", "4",
+                             "--max-steps", "300", "--json")
+    assert code == 0, err
+    payload = json.loads(out)
+    post = payload["posterior"]
+    assert post["names"] == payload["param_names"] == ["theta[0]", "I[0]", "theta[1]", "I[1]"]
+    ml, est = np.array(payload["params"]), np.array(post["estimate"])
+    sd = np.array(post["crlb_sd"])
+    assert np.all(np.abs(np.angle(np.exp(1j * (est - ml)))) < 5 * sd)  # same source per label
+    assert payload["provenance"]["seed"] == 4 and len(payload["provenance"]["data_sha256"]) == 64
+    assert 0 <= post["model_check"]["ppp"] <= 1 and post["model_check"]["dof"] == 26
+    summary = json.loads((rep / "summary.json").read_text())
+    assert summary["names"] == post["names"] == list(summary["parameters"])
+    with (rep / "summary.csv").open() as fh:
+        assert [row[0] for row in csv.reader(fh)][1:] == post["names"]
+    back = PosteriorResult.from_netcdf(rep / "posterior.nc")
+    assert list(back.names) == post["names"]
+    np.testing.assert_allclose(back.estimate, est, rtol=1e-12)
+    assert back.seed is not None and summary["run"]["seed"] == back.seed
+
+
+def test_fit_draws_prints_and_records_a_seed_when_none_is_given(capsys):
+    code, out, _ = run_cli(capsys, "fit")
+    assert code == 0
+    line = next(ln for ln in out.splitlines() if ln.startswith("seed "))
+    assert "drawn" in line and int(line.split()[1]) >= 0
+    code, out, _ = run_cli(capsys, "fit", "--json")
+    payload = json.loads(out)
+    assert isinstance(payload["provenance"]["seed"], int)
+    assert abs(payload["chi2_dof"] - 1) < 3 * np.sqrt(2 / payload["dof"])
+
+
+def test_fit_honours_degrees_on_output(tmp_path, capsys):
+    cfg = tmp_path / "deg.toml"
+    cfg.write_text(DEFAULT_CONFIG.replace(
+        "directions = [0.37, -2.7715926535897933]   # rad, pi apart",
+        'directions = [21.2, -158.8]\nangle_unit = "deg"'))
+    code, out, _ = run_cli(capsys, "fit", str(cfg), "--json", "--seed", "1")
+    assert code == 0
+    payload = json.loads(out)
+    assert payload["angle_unit"] == "deg"
+    np.testing.assert_allclose(payload["params"][0::2], [-158.8, 21.2], atol=3)
+    np.testing.assert_allclose(payload["truth"][0::2], [-158.8, 21.2], atol=1e-9)
+    code, out, _ = run_cli(capsys, "fit", str(cfg), "--seed", "1")
+    assert "locations in deg" in out
 
 
 def test_fit_posterior_rejects_contradictory_options(tmp_path, capsys):

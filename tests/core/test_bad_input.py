@@ -328,7 +328,8 @@ def _cli_cases(tmp_path):
         ["study"],
         ["study", str(cfg_bad)],
         ["image", "--prior", "bogus"],
-        ["image", "--figure", str(tmp_path / "sky.png")],  # sky maps need a sphere
+        ["image", "--prior", "two-level"],  # the bright level has no default
+        ["image", "--prior", "sparse"],  # withdrawn: does not mix
     ]
 
 

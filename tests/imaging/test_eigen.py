@@ -7,7 +7,7 @@ import pytest
 from reference.moments import batch_se, box_moments_2d
 
 import olsbayes as ob
-from olsbayes.imaging import ImageOptions, design_matrix, image
+from olsbayes.imaging import ImageOptions
 from olsbayes.imaging.eigen import eigen_gibbs
 
 
@@ -46,23 +46,7 @@ def test_eigen_gibbs_nonnegative_1d_half_line():
     assert abs(x.mean() - ref.mean()) < 5 * batch_se(x.mean(axis=1))
 
 
-def test_image_with_the_eigen_sampler(ring_problem_eigen):
-    model, dirs, y = ring_problem_eigen
-    res = image(model, y, dirs, "bounded", rng=4,
-                options=ImageOptions(sampler="eigen", n_samples=300, n_burn=20))
-    ref = image(model, y, dirs, "bounded", rng=5,
-                options=ImageOptions(sampler="hmc", n_samples=300, n_burn=20))
-    assert res.sampler == "eigen" and res.samples.shape == (4, 300, 2) and res.rhat < 1.05
-    # both means are Monte Carlo estimates: 5 sd of their difference, by batch means
-    # over the pooled (draws, chains) of each run (autocorrelation included)
-    se = np.hypot(*(batch_se(np.moveaxis(r.samples, 1, 0).reshape(-1, 2)) for r in (res, ref)))
-    np.testing.assert_array_less(np.abs(res.mean - ref.mean), 5 * se)
-
-
-@pytest.fixture
-def ring_problem_eigen():
-    model = ob.Model(ob.Ring(8), sigma=0.3)
-    dirs = np.array([0.3, 2.0])
-    a = design_matrix(model, dirs)
-    y = a @ np.array([0.6, 0.2]) + model.sigma * np.random.default_rng(3).standard_normal(8)
-    return model, dirs, y
+def test_the_eigen_sampler_is_not_offered():
+    """Withdrawn from ImageOptions: it mixed worse than Gibbs on every scene measured."""
+    with pytest.raises(ob.InputError, match="sampler 'eigen' is not offered: .*R-hat"):
+        ImageOptions(sampler="eigen")

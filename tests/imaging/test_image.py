@@ -260,6 +260,7 @@ def test_nonnegative_image_matches_2d_quadrature(ring_problem):
         np.testing.assert_array_less(np.abs(d2 - np.diag(cov)), 5 * se2)
 
 
+@pytest.mark.filterwarnings("ignore::olsbayes.errors.ConvergenceWarning")  # 20 draws per chain
 def test_image_is_reproducible_with_a_seed(ring_problem):
     model, dirs, a, y = ring_problem
     opts = ImageOptions(n_samples=20, n_burn=5)

@@ -10,7 +10,15 @@ from scipy.optimize import lsq_linear
 
 import olsbayes as ob
 from olsbayes.errors import InputError
-from olsbayes.imaging import Bounded, ImageOptions, NonNegative, TwoLevel, design_matrix, image
+from olsbayes.imaging import (
+    Bounded,
+    ImageOptions,
+    NonNegative,
+    Sparse,
+    TwoLevel,
+    design_matrix,
+    image,
+)
 from olsbayes.imaging.binary import two_level_log_posterior, two_level_map
 
 
@@ -46,13 +54,13 @@ def test_mode_only_is_bounded_least_squares_without_sampling(sphere_problem, pri
     assert res.samples is None and res.sampler == "mode-only"
     assert np.all(np.isnan(res.sd)) and np.all(np.isnan(res.lower)) and np.isnan(res.rhat)
     assert res.rank == np.linalg.matrix_rank(a) and res.design.null_space.shape[0] == 10
-    assert res.summary()["n_draws"] == 0
+    assert res.diagnostics()["n_draws"] == 0
 
 
 @pytest.mark.parametrize(
     "prior,n,match",
-    [("bounded", 2, "0 \\(mode only\\) or >= 4"), ("sparse", 0, ">= 4"),
-     ("two-level", 10, "MAP only")],
+    [("bounded", 2, "0 \\(mode only\\) or >= 4"), (Sparse(), 0, ">= 4"),
+     (TwoLevel(i_max=1.0), 10, "MAP only")],
 )
 def test_n_samples_rules_per_prior(sphere_problem, prior, n, match):
     model, dirs, _, y, _ = sphere_problem
@@ -79,7 +87,7 @@ def test_two_level_image_finds_the_brute_force_map(sphere_problem, p):
     np.testing.assert_array_equal(res.mean, res.mode)
     assert res.search.log_posterior == pytest.approx(best_lp, rel=1e-12)
     assert res.search.local_optimum and res.search.reference_better is False
-    assert res.summary()["reference_log_posterior"] <= res.summary()["log_posterior"]
+    assert res.diagnostics()["reference_log_posterior"] <= res.diagnostics()["log_posterior"]
 
 
 def test_two_level_search_ends_in_a_local_optimum_of_its_moves(sphere_problem):
@@ -132,13 +140,13 @@ def test_group_moves_flip_a_checkerboard_that_no_2_flip_reaches():
 @pytest.mark.parametrize("p", [1.0, 0.0, -0.5, np.nan, True, "0.5"])
 def test_two_level_p_bright_outside_the_open_unit_interval_is_refused(p):
     with pytest.raises(InputError, match=r"TwoLevel.p_bright must be a number in \(0, 1\)"):
-        TwoLevel(p_bright=p)
+        TwoLevel(i_max=1.0, p_bright=p)
 
 
 def test_two_level_reference_of_the_wrong_length_is_refused(sphere_problem):
     model, dirs, _, y, _ = sphere_problem
     with pytest.raises(InputError, match=r"reference must have shape \(10,\)"):
-        image(model, y, dirs, "two-level", options=ImageOptions(reference=np.zeros(3)))
+        image(model, y, dirs, TwoLevel(i_max=1.0), options=ImageOptions(reference=np.zeros(3)))
 
 
 def test_search_stops_at_max_moves_and_says_so(sphere_problem):

@@ -1,0 +1,65 @@
+"""Packaging: dependencies exactly as imported, python -m olsbayes, typed marker, licence."""
+
+import ast
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import olsbayes
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGE = Path(olsbayes.__file__).parent
+#: Distribution name of an imported top-level module where the two differ.
+DISTRIBUTION = {"distributed": "distributed"}
+#: Used by name rather than imported: the NetCDF engine of xarray and ArviZ.
+ENGINES = {"h5netcdf"}
+#: Imported only by the optional Dask executor (the ``dask`` extra).
+OPTIONAL = {"distributed"}
+
+
+def _imported_top_level() -> set[str]:
+    names = set()
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+    return {n for n in names if n not in sys.stdlib_module_names and n != "olsbayes"}
+
+
+def _declared() -> tuple[set[str], set[str]]:
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+
+    def name(req: str) -> str:
+        for sep in "<>=[; ":
+            req = req.split(sep)[0]
+        return req.strip().lower()
+
+    extras = {name(r) for reqs in project["optional-dependencies"].values() for r in reqs}
+    return {name(r) for r in project["dependencies"]}, extras
+
+
+def test_dependencies_are_exactly_the_imported_packages():
+    imported = {DISTRIBUTION.get(n, n).lower() for n in _imported_top_level()}
+    required, extras = _declared()
+    assert imported - OPTIONAL == required - ENGINES, (imported, required)
+    assert OPTIONAL <= extras
+
+
+def test_python_dash_m_olsbayes_runs_the_command_line():
+    proc = subprocess.run([sys.executable, "-m", "olsbayes", "--version"], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"olsbayes {olsbayes.__version__}"
+
+
+def test_typed_marker_licence_and_citation_ship_with_the_package():
+    assert (PACKAGE / "py.typed").is_file()
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert project["tool"]["setuptools"]["package-data"]["olsbayes"] == ["py.typed"]
+    licence = (ROOT / "LICENSE").read_text()
+    assert project["project"]["license"] == "BSD-3-Clause" and "BSD 3-Clause License" in licence
+    citation = (ROOT / "CITATION.cff").read_text(encoding="utf-8")
+    assert "Optics-less Sensors for Localization of Radiation Sources" in citation
+    assert f'version: "{olsbayes.__version__}"' in citation
