@@ -70,10 +70,17 @@ seed = 20260123
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """An ArgumentParser whose usage errors are one line on stderr, exit status 2."""
+    """An ArgumentParser whose usage errors are one line on stderr, exit status 2.
+
+    The line starts ``olsbayes: error:`` for every subcommand (the subcommand is
+    named after it), like the errors of a run.
+    """
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+        top, _, sub = self.prog.partition(" ")
+        where = f"{sub}: " if sub else ""
+        text = " ".join(str(message).split())
+        self.exit(2, f"{top}: error: {where}{text} (see `{self.prog} --help`)\n")
 
 
 def add_command(subparsers: Any, name: str, **kwargs: Any) -> argparse.ArgumentParser:

@@ -150,7 +150,7 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
                              f"got {_short(scheduler)}")
         try:
             client = Client(scheduler, timeout="20s")
-        except OSError as exc:
+        except (OSError, ValueError) as exc:  # ValueError: a malformed address
             raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
         return _dask_backend(client, client.close)
     cluster = LocalCluster(n_workers=_local_workers(workers), threads_per_worker=1,
