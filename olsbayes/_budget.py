@@ -19,12 +19,16 @@ import re
 
 from .errors import InputError
 
-__all__ = ["DEFAULT_LIMIT", "ENV_VAR", "memory_limit", "check_memory", "format_bytes"]
+__all__ = ["DEFAULT_LIMIT", "ENV_VAR", "SENSOR_BYTES", "memory_limit", "check_memory",
+           "check_sensors", "format_bytes"]
 
 #: Bytes one call may plan to allocate for its largest arrays, by default (4 GiB).
 DEFAULT_LIMIT = 4 * 2**30
 #: Environment variable that overrides :data:`DEFAULT_LIMIT`.
 ENV_VAR = "OLSBAYES_MEMORY_LIMIT"
+
+#: Bytes an array and a model keep per sub-sensor (normals, positions, angles, copies).
+SENSOR_BYTES = 96
 
 _UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12,
           "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
@@ -72,3 +76,8 @@ def check_memory(what: str, nbytes: float) -> None:
             f"{format_bytes(limit)} (raise it with the environment variable {ENV_VAR}, "
             "e.g. OLSBAYES_MEMORY_LIMIT=16GB)"
         )
+
+
+def check_sensors(what: str, n: int) -> None:
+    """:func:`check_memory` of an array of ``n`` sub-sensors (``what`` names the sizes)."""
+    check_memory(what, float(n) * SENSOR_BYTES)

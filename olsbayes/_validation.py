@@ -39,7 +39,9 @@ def _short(value: object) -> str:
 SIGMA_RANGE = (1e-100, 1e100)
 #: Largest ratio, either way, of a data vector's largest |reading| to sigma (an all-zero
 #: vector is accepted): the likelihood's (reading / sigma)^2 and the fits' internal
-#: rescaling of the readings stay within floating point.
+#: rescaling of the readings stay within floating point.  Beyond ~1e13 the noise lies
+#: below the rounding of float64 readings (16 digits), and fits warn that chi^2 does
+#: not follow sigma (:mod:`olsbayes.ml.honesty`).
 READING_RATIO = 1e90
 
 #: dtype kinds refused as numbers, with the name used in messages.

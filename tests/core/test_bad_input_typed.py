@@ -91,8 +91,8 @@ def test_api_typed_bad_input(label, call, match):
 
 
 def test_sigma_at_the_ends_of_its_range_gives_finite_bounds():
-    """sigma in [1e-100, 1e100] with intensity / sigma up to 1e80: finite CRLB and fits."""
-    for sigma, inten in ((1e-100, 1e-94), (1e100, 1e106), (1e-3, 1e77)):
+    """sigma in [1e-100, 1e100], intensity / sigma 1e6 .. 1e13: finite CRLB and fits."""
+    for sigma, inten in ((1e-100, 1e-94), (1e100, 1e106), (1e-3, 1e10)):
         model = ob.Model(RING, sigma)
         scene = ob.Scene(directions=[0.1, 2.0], intensities=[inten, inten])
         bound = ob.crlb(model, scene)
@@ -100,6 +100,15 @@ def test_sigma_at_the_ends_of_its_range_gives_finite_bounds():
         fit = ob.fit_ml(model, model.simulate(scene, rng=1), 2)
         assert np.all(np.isfinite(fit.std))
         np.testing.assert_allclose(fit.params[1::2], inten, rtol=1e-4)  # SNR >= 1e6
+
+
+def test_noise_below_the_rounding_of_the_readings_is_warned():
+    """intensity / sigma = 1e80 is accepted, but float64 readings cannot carry that noise."""
+    model = ob.Model(RING, 1e-3)
+    scene = ob.Scene(directions=[0.1, 2.0], intensities=[1e77, 1e77])
+    with pytest.warns(ob.ConvergenceWarning, match="do not describe the readings"):
+        fit = ob.fit_ml(model, model.simulate(scene, rng=1), 2)
+    np.testing.assert_allclose(fit.params[1::2], 1e77, rtol=1e-12)
 
 
 def test_integer_and_low_precision_readings_are_numbers():
