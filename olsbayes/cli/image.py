@@ -50,7 +50,7 @@ from ._common import (
     emit,
     format_table,
     load_cli_config,
-    output_dir,
+    output_file,
 )
 
 __all__ = ["register", "run"]
@@ -177,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
     if args.figure is not None:
         if model.kind != "lonlat":
             raise InputError("--figure draws sky maps and needs a sphere array")
-        output_dir(args.figure.parent if str(args.figure.parent) else Path("."), "--figure")
+        output_file(args.figure, "--figure")
     res = image(model, data, dirs, prior, options=options, rng=args.seed)
     payload: dict[str, Any] = {
         **res.summary(),
