@@ -164,6 +164,12 @@ def jsonable(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
+        if obj.dtype.kind == "f":  # vectorised: non-finite entries to None
+            out = obj.astype(object)
+            out[~np.isfinite(obj)] = None
+            return out.tolist()
+        if obj.dtype.kind in "biu":
+            return obj.tolist()
         return jsonable(obj.tolist())
     if isinstance(obj, (np.bool_, bool)):
         return bool(obj)
@@ -185,7 +191,7 @@ def emit(args: argparse.Namespace, payload: Mapping[str, Any], text: str) -> Non
     """
     if getattr(args, "json", False):
         payload = {**payload, "warnings": list(getattr(args, "warnings_seen", []))}
-        json.dump(jsonable(payload), sys.stdout, allow_nan=False)
+        sys.stdout.write(json.dumps(jsonable(payload), allow_nan=False))  # C encoder
         sys.stdout.write("\n")
     else:
         sys.stdout.write(text.rstrip("\n") + "\n")

@@ -2,7 +2,8 @@
 
 Readings come from --data FILE, else from the config's [data] section (a file
 or a simulation of [scene]).  K comes from --n-sources, else from [scene].
-A file with T rows is fitted row by row in one batched call.
+A file with T rows is fitted in one batched call and printed as one table (a line
+per row and source).
 
 With --posterior the ML point seeds an emcee ensemble (olsbayes.posterior) and
 the posterior sd is printed next to the CRLB; --report DIR also writes corner and
@@ -40,7 +41,8 @@ from ._common import (
     output_dir,
 )
 
-__all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs", "posterior_block"]
+__all__ = ["register", "run", "fit_payload", "fit_text", "batch_text", "load_fit_inputs",
+           "posterior_block"]
 
 
 def register(subparsers: Any) -> None:
@@ -97,15 +99,20 @@ def _rows(model: Model, params: np.ndarray, std: np.ndarray) -> list[list[Any]]:
     return [[*blocks[i, :-1], blocks[i, -1], *sds[i, :-1], sds[i, -1]] for i in range(k)]
 
 
-def fit_payload(model: Model, result: Any, truth: Scene | None) -> dict[str, Any]:
-    """JSON-ready dictionary of an :class:`~olsbayes.ml.MLResult`."""
+def fit_payload(model: Model, result: Any, truth: Scene | None,
+                std: np.ndarray | None = None) -> dict[str, Any]:
+    """JSON-ready dictionary of an :class:`~olsbayes.ml.MLResult`.
+
+    ``std``: the result's standard errors when already computed (``result.std``).
+    """
+    std = result.std if std is None else std
     payload: dict[str, Any] = {
         "model": repr(model),
         "method": result.method,
         "n_sources": result.n_sources,
         "param_names": model.param_names(result.n_sources),
         "params": result.params,
-        "std": result.std,
+        "std": std,
         "log_likelihood": result.log_likelihood,
         "converged": result.converged,
         "rival_gap": result.rival_gap,
@@ -113,7 +120,7 @@ def fit_payload(model: Model, result: Any, truth: Scene | None) -> dict[str, Any
     if truth is not None:
         x_true = model.canonical(model.pack(truth))
         payload["truth"] = x_true
-        payload["error_over_std"] = _z(model, result.params, x_true, result.std)
+        payload["error_over_std"] = _z(model, result.params, x_true, std)
     return payload
 
 
@@ -127,11 +134,12 @@ def _z(model: Model, est: np.ndarray, true: np.ndarray, std: np.ndarray) -> np.n
         return err / std
 
 
+_LOC_NAMES = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}
+
+
 def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = None) -> str:
     """Estimate +- Fisher std per source (and the truth, when known) as a table."""
-    names = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}[
-        model.kind
-    ]
+    names = _LOC_NAMES[model.kind]
     params = result.params if row is None else result.params[row]
     std = result.std if row is None else result.std[row]
     header = ["k", *names, "I", *(f"sd({n})" for n in names), "sd(I)"]
@@ -145,6 +153,31 @@ def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = N
         lines += ["Truth and error / sd:", format_table(
             ["k", *names, "I", *(f"err/sd({n})" for n in names), "err/sd(I)"], t_rows, 4)]
     return "\n".join(lines)
+
+
+def batch_text(model: Model, result: Any, truth: Scene | None, std: np.ndarray) -> str:
+    """One table of a batch fit: a line per data vector and source.
+
+    Columns: row, k, estimate, Fisher std, the row's log-likelihood (on its first
+    source) and, when the truth is known, error / std.  ``std`` (T, P) is
+    ``result.std``, computed once by the caller.
+    """
+    names = _LOC_NAMES[model.kind]
+    k, d1 = result.n_sources, model.n_loc + 1
+    est = result.params.reshape(-1, k, d1)
+    sd = std.reshape(-1, k, d1)
+    ll = np.asarray(result.log_likelihood, dtype=float)
+    header = ["row", "k", *names, "I", *(f"sd({n})" for n in names), "sd(I)", "log L"]
+    cols = [est[..., j] for j in range(d1)] + [sd[..., j] for j in range(d1)]
+    if truth is not None:
+        z = _z(model, result.params, model.canonical(model.pack(truth)), std).reshape(-1, k, d1)
+        header += [f"err/sd({n})" for n in (*names, "I")]
+        cols += [z[..., j] for j in range(d1)]
+    flat = [c.ravel().tolist() for c in cols]
+    first = ll.repeat(k).tolist()
+    rows = [[t // k, t % k, *(c[t] for c in flat[: 2 * d1]), first[t] if t % k == 0 else "",
+             *(c[t] for c in flat[2 * d1 :])] for t in range(ll.size * k)]
+    return format_table(header, rows)
 
 
 def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
@@ -222,10 +255,12 @@ def run(args: argparse.Namespace) -> int:
     ml_rng, post_rng = (None, None) if args.seed is None else np.random.SeedSequence(
         args.seed).spawn(2)
     result = fit_ml(model, data, k, method=args.method, rng=ml_rng)
-    payload = fit_payload(model, result, truth)
-    if result.is_batch:
-        blocks = [f"row {t}: log-likelihood {float(result.log_likelihood[t]):.6g}\n"
-                  + fit_text(model, result, truth, row=t) for t in range(result.n_trials)]
+    std = result.std  # once: (T, P) for a batch
+    payload = fit_payload(model, result, truth, std)
+    if args.json:
+        blocks = []  # the text is not printed
+    elif result.is_batch:
+        blocks = [batch_text(model, result, truth, std)]
     else:
         blocks = [f"log-likelihood {float(result.log_likelihood):.6g}\n"
                   + fit_text(model, result, truth)]
