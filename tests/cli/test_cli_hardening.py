@@ -147,7 +147,7 @@ def test_fit_json_reports_a_poor_fit(tmp_path, capsys):
 
 
 def test_multi_row_fit_computes_the_errors_once(tmp_path, capsys, monkeypatch):
-    """The CLI took O(T^2): MLResult.std (a (T, P) array) was recomputed for every row."""
+    """MLResult.std, a (T, P) array, is computed once, not once per printed row (O(T^2))."""
     from olsbayes.ml.result import MLResult
 
     calls = []

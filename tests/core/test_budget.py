@@ -106,8 +106,11 @@ def test_default_limit_and_units(monkeypatch):
 
 @pytest.mark.parametrize("readings", ["zeros", "constant"])
 def test_degenerate_readings_are_fitted_in_bounded_memory(readings):
-    """All-zero readings used ~63 kB per row (every configuration of the exact escalation
-    tied); 16000 rows now stay far below that and give the trivial fit."""
+    """16000 all-zero or constant rows: a few kB per row at most, and the trivial fit.
+
+    With all-zero readings every configuration of the exact escalation ties, so an
+    unbounded re-solve would keep 64 candidates per row.
+    """
     data = np.zeros((16_000, 30)) if readings == "zeros" else np.full((16_000, 30), 0.3)
     ob.fit_ml(MODEL, data[:2], 2, warn=False)  # compiled kernels loaded outside the count
     out = {}
@@ -116,7 +119,7 @@ def test_degenerate_readings_are_fitted_in_bounded_memory(readings):
         out["fit"] = ob.fit_ml(MODEL, data, 2, warn=False)
 
     peak = _peak(run)
-    assert peak < 100e6, peak  # was ~1 GB for the zero rows
+    assert peak < 100e6, peak
     fit = out["fit"]
     assert fit.params.shape == (16_000, 4)
     if readings == "zeros":

@@ -156,7 +156,7 @@ def test_explicit_burn_in_is_honoured():
 
     res = sample(MODEL, DATA, 2, options=SamplerOptions(n_steps=200, n_burn=150), rng=1,
                  progress=False)
-    assert res.n_burn == 150 and res.samples.shape[1] == 50  # was quietly cut to 100
+    assert res.n_burn == 150 and res.samples.shape[1] == 50  # not cut to half the run
 
 
 def test_select_k_refuses_unknown_threshold_keys():
