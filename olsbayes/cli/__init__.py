@@ -80,6 +80,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         except OlsBayesError as exc:
             print(f"olsbayes: error: {' '.join(str(exc).split())}", file=sys.stderr)
             return 2
+        except RecursionError:  # a pathologically nested input (TOML, --set) not caught earlier
+            print("olsbayes: error: the input is nested too deeply to process", file=sys.stderr)
+            return 2
         except KeyboardInterrupt:
             print("olsbayes: interrupted", file=sys.stderr)
             return 130

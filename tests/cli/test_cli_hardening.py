@@ -97,6 +97,14 @@ def test_a_device_is_refused_without_writing():
     assert Path("/dev/null").is_char_device()
 
 
+def test_a_deeply_nested_study_file_is_one_line(tmp_path, capsys):
+    deep = tmp_path / "deep.toml"
+    deep.write_text('[study]\ntrial = "noise_check"\nx = ' + "{a = " * 50_000 + "1"
+                    + "}" * 50_000 + "\n")
+    code, _, err = _run(capsys, "study", deep)
+    _one_line_error(code, err, "nested too deeply")
+
+
 def test_usage_errors_of_subcommands_start_with_olsbayes(capsys):
     code, _, err = _run(capsys, "crlb", "--frob")
     _one_line_error(code, err, "olsbayes: error: ")
