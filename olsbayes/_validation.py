@@ -15,7 +15,13 @@ import numpy as np
 from .errors import InputError
 
 __all__ = [
+    "real_array",
     "finite_array",
+    "noise_sd",
+    "check_reading_range",
+    "SIGMA_RANGE",
+    "READING_RATIO",
+    "DTYPE_KINDS",
     "positive_float",
     "nonnegative_float",
     "integer",
@@ -28,6 +34,85 @@ def _short(value: object) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+#: Accepted noise standard deviations (reading units): sigma^2, 1 / sigma^2 and the
+#: Fisher information ~ N (I / sigma)^2 stay far inside the floating-point range.
+SIGMA_RANGE = (1e-100, 1e100)
+#: Largest ratio, either way, of a data vector's largest |reading| to sigma (an all-zero
+#: vector is accepted): the likelihood's (reading / sigma)^2 and the fits' internal
+#: rescaling of the readings stay within floating point.  Beyond ~1e13 the noise lies
+#: below the rounding of float64 readings (16 digits), and fits warn that chi^2 does
+#: not follow sigma (:mod:`olsbayes.ml.honesty`).
+READING_RATIO = 1e90
+
+#: dtype kinds refused as numbers, with the name used in messages.
+DTYPE_KINDS = {"b": "bool", "c": "complex", "U": "string", "S": "bytes", "M": "datetime",
+             "m": "timedelta", "O": "object", "V": "structured"}
+
+
+def real_array(name: str, value: object) -> np.ndarray:
+    """``value`` as a float64 array, refusing anything that is not real numbers.
+
+    Integer and floating dtypes are converted; complex, bool, string, bytes,
+    datetime, timedelta, object and structured arrays are refused (a complex
+    array would lose its imaginary part, a string or datetime would be parsed or
+    counted as a number), and so are masked arrays with masked entries (numpy
+    would drop the mask).  The message names the argument and the dtype, never
+    the values.
+    """
+    if type(value) is np.ndarray and value.dtype == np.float64:
+        return value
+    if isinstance(value, np.ma.MaskedArray) and np.ma.is_masked(value):
+        raise InputError(f"{name} has masked entries; drop or fill them first "
+                         "(e.g. value.filled(...) or value.compressed())")
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be an array of real numbers; got a ragged or "
+                         f"non-numeric {type(value).__name__}") from None
+    kind = DTYPE_KINDS.get(raw.dtype.kind)
+    if kind is None and raw.dtype.kind not in "fiu":
+        kind = str(raw.dtype)
+    if kind is not None:
+        hint = (" (or numbers too large for a float)" if kind == "object" else "")
+        raise InputError(f"{name} must be an array of real numbers (int or float); got "
+                         f"{kind} values of dtype {raw.dtype}{hint}")
+    try:
+        return raw.astype(np.float64, copy=False)
+    except (TypeError, ValueError, OverflowError):  # pragma: no cover - fiu always casts
+        raise InputError(f"{name} must be an array of real numbers; got dtype {raw.dtype}"
+                         ) from None
+
+
+def noise_sd(name: str, value: object) -> float:
+    """Check a noise standard deviation: a real number in :data:`SIGMA_RANGE`."""
+    lo, hi = SIGMA_RANGE
+    x = positive_float(name, value)
+    if not lo <= x <= hi:
+        raise InputError(
+            f"{name} must be in [{lo:g}, {hi:g}] (reading units; express the readings in "
+            f"a unit that brings the noise level into this range); got {x!r}")
+    return x
+
+
+def check_reading_range(name: str, data: np.ndarray, sigma: float) -> None:
+    """Refuse data vectors whose largest |reading| is not within a factor of sigma.
+
+    The factor is :data:`READING_RATIO`, either way; all-zero vectors pass.
+    ``data`` (..., N) holds finite floats; each vector along the last axis is checked.
+    """
+    if data.size == 0:
+        return
+    top = np.max(np.abs(data), axis=-1)
+    high = top > READING_RATIO * sigma
+    low = (top > 0) & (top < sigma / READING_RATIO)
+    if np.any(high) or np.any(low):
+        worst = float(np.max(top[high])) if np.any(high) else float(np.min(top[low]))
+        raise InputError(
+            f"{name}: the largest |reading| of a data vector must be within a factor "
+            f"{READING_RATIO:g} of sigma = {sigma:g} (or all readings 0); got {worst:.3g} "
+            "(check the units of the readings and of sigma)")
+
+
 def finite_array(
     name: str,
     value: object,
@@ -38,6 +123,8 @@ def finite_array(
     allow_empty: bool = False,
 ) -> np.ndarray:
     """Return ``value`` as a float array after checking it.
+
+    The dtype rules are those of :func:`real_array` (real numbers only).
 
     Parameters
     ----------
@@ -54,12 +141,7 @@ def finite_array(
     allow_empty : bool
         Accept arrays with zero elements.
     """
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(
-            f"{name} must be an array of real numbers; got {_short(value)}"
-        ) from None
+    arr = real_array(name, value)
     if ndim is not None:
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if arr.ndim not in allowed:

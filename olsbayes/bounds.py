@@ -90,7 +90,9 @@ def bound_covariance(fisher: np.ndarray) -> tuple[np.ndarray, float | np.ndarray
     A parameter's bound is finite iff its unit vector is orthogonal to the null
     space of the Fisher matrix; finite bounds then come from the pseudo-inverse.
     Null space and inverse are those of the :func:`equilibrate`-d matrix.
-    Batched over leading axes.
+    Batched over leading axes.  A Fisher matrix with non-finite entries (the
+    information overflowed: intensity / sigma beyond ~1e150) gets a NaN covariance
+    and condition; callers warn or refuse.
 
     Returns
     -------
@@ -104,6 +106,9 @@ def bound_covariance(fisher: np.ndarray) -> tuple[np.ndarray, float | np.ndarray
     if f.shape[-1] == 0:
         cond = np.ones(f.shape[:-2])
         return f.copy(), float(cond) if cond.ndim == 0 else cond, np.zeros(f.shape[:-1], bool)
+    bad = ~np.all(np.isfinite(f), axis=(-2, -1))  # overflowed information: no bound
+    if np.any(bad):
+        f = np.where(bad[..., None, None], np.eye(f.shape[-1]), f)
     w, v = np.linalg.eigh(f)  # (..., P), (..., P, P)
     top = np.maximum(w[..., -1:], np.finfo(float).tiny)
     null = w <= SINGULAR_RTOL * top
@@ -113,6 +118,9 @@ def bound_covariance(fisher: np.ndarray) -> tuple[np.ndarray, float | np.ndarray
     cov = np.where(singular[..., :, None] | singular[..., None, :], np.inf, cov)
     sing = null.any(axis=-1)
     cond = np.where(sing, np.inf, top[..., 0] / np.where(sing, 1.0, w[..., 0]))
+    if np.any(bad):
+        cov = np.where(bad[..., None, None], np.nan, cov)
+        cond = np.where(bad, np.nan, cond)
     return cov, float(cond) if cond.ndim == 0 else cond, singular
 
 
@@ -141,7 +149,15 @@ def crlb(model: Model, scene: Scene) -> CRLBResult:
         raise InputError("scene must hold at least one source (n_sources >= 1); got 0")
     x = model.pack(scene)
     k = scene.n_sources
-    fisher = model.fisher(x)
+    with np.errstate(over="ignore", invalid="ignore"):
+        fisher = model.fisher(x)
+    if not np.all(np.isfinite(fisher)):
+        ratio = float(np.max(scene.intensities)) / model.sigma
+        raise InputError(
+            f"the Fisher information of this scene overflows floating point (largest "
+            f"intensity / sigma = {ratio:.3g}; sources this far above the noise, or this "
+            "close to a sub-sensor, have no representable bound): use readings, "
+            "intensities and sigma in units where intensity / sigma is at most ~1e90")
     cov, cond, singular = bound_covariance(fisher)
     if singular.any():
         names = [n for n, s in zip(model.param_names(k), singular) if s]

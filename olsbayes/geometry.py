@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._budget import check_sensors
 from ._frozen import Frozen
 from ._validation import finite_array, integer, positive_float
 from .circular import TWO_PI, wrap_angle
@@ -128,6 +129,7 @@ class Ring(SensorArray):
 
     def __init__(self, n: int, offset: float = 0.0):
         self.n = integer("n", n, low=3)
+        check_sensors(f"Ring(n={self.n})", self.n)
         off = finite_array("offset", offset, ndim=0)
         self.offset = float(off)
         self.angles = _readonly(wrap_angle(self.offset + TWO_PI * np.arange(self.n) / self.n))
@@ -187,6 +189,7 @@ class Sphere(SensorArray):
         n_lon = integer("n_lon", n_lon, low=1)
         if n_lat * n_lon < 3:
             raise InputError(f"n_lat * n_lon must be >= 3; got {n_lat * n_lon}")
+        check_sensors(f"Sphere.grid(n_lat={n_lat}, n_lon={n_lon})", n_lat * n_lon)
         lat_max = positive_float("lat_max", lat_max, upper=np.pi / 2)
         bounds = finite_array("lon_range", lon_range, ndim=1)
         span = bounds[1] - bounds[0] if bounds.shape == (2,) else np.nan
@@ -205,6 +208,7 @@ class Sphere(SensorArray):
     def fibonacci(cls, n: int) -> "Sphere":
         """``n`` near-uniform sub-sensors on the whole sphere (Fibonacci lattice)."""
         n = integer("n", n, low=3)
+        check_sensors(f"Sphere.fibonacci(n={n})", n)
         k = np.arange(n) + 0.5
         lat = np.arcsin(1.0 - 2.0 * k / n)
         lon = wrap_angle(np.pi * (1.0 + 5.0**0.5) * k)
@@ -236,6 +240,7 @@ class Plate(SensorArray):
         ny = integer("ny", ny, low=1)
         if nx * ny < 3:
             raise InputError(f"nx * ny must be >= 3; got {nx * ny}")
+        check_sensors(f"Plate.grid(nx={nx}, ny={ny})", nx * ny)
         pitch = positive_float("pitch", pitch)
         x = (np.arange(nx) - (nx - 1) / 2.0) * pitch
         y = (np.arange(ny) - (ny - 1) / 2.0) * pitch

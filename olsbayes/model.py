@@ -20,7 +20,14 @@ import numpy as np
 
 from ._frozen import Frozen
 from ._nearfield import near_gain, near_jacobian_t
-from ._validation import as_rng, finite_array, integer, positive_float
+from ._validation import (
+    as_rng,
+    check_reading_range,
+    finite_array,
+    integer,
+    noise_sd,
+    real_array,
+)
 from .circular import wrap_angle
 from .errors import InputError
 from .geometry import SensorArray, lonlat_to_unit
@@ -56,8 +63,8 @@ class Model(Frozen):
     array : SensorArray
         The sub-sensors (:class:`~olsbayes.Ring`, :class:`~olsbayes.Sphere`, ...).
     sigma : float
-        Standard deviation of the additive Gaussian sub-sensor noise (> 0), in
-        units of the readings.
+        Standard deviation of the additive Gaussian sub-sensor noise, in units of
+        the readings, within [1e-100, 1e100] (:data:`olsbayes._validation.SIGMA_RANGE`).
     sensitivity : Sensitivity or str, optional
         Angular law; default the paper's clipped cosine.
 
@@ -82,7 +89,7 @@ class Model(Frozen):
                 f"array must be a SensorArray (Ring, Sphere, Plate); got {type(array).__name__}"
             )
         self.array = array
-        self.sigma = positive_float("sigma", sigma)
+        self.sigma = noise_sd("sigma", sigma)
         self.sensitivity = get_sensitivity(sensitivity)
         self._normals_t = np.ascontiguousarray(array.normals.T)
         self._positions_t = (
@@ -202,13 +209,8 @@ class Model(Frozen):
             return x  # already a valid float array: the common case, checked cheaply
         if isinstance(scene_or_params, Scene):
             return self.pack(scene_or_params)
-        try:
-            x = np.asarray(scene_or_params, dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(
-                f"params must be a Scene or a real array of shape (..., K * {self.n_loc + 1}); "
-                f"got {type(scene_or_params).__name__}"
-            ) from None
+        x = real_array("params (a Scene or a real array of shape (..., K * "
+                       f"{self.n_loc + 1}))", scene_or_params)
         self.n_sources_of(x)
         return x
 
@@ -343,8 +345,13 @@ class Model(Frozen):
 
     # -- statistics -------------------------------------------------------------
     def check_data(self, data: object, name: str = "data") -> np.ndarray:
-        """Validate readings: finite, last axis of length N."""
+        """Validate readings: real, finite, last axis of length N.
+
+        Each data vector's largest |reading| must lie within a factor
+        :data:`~olsbayes._validation.READING_RATIO` of sigma (or be 0).
+        """
         arr = finite_array(name, data, last=self.n_sensors)
+        check_reading_range(name, arr, self.sigma)
         return arr
 
     def log_likelihood(self, scene_or_params: Scene | np.ndarray, data: np.ndarray) -> np.ndarray:
@@ -352,10 +359,7 @@ class Model(Frozen):
 
         ``params`` (..., n_params) and ``data`` (..., N) broadcast over leading axes.
         """
-        try:
-            data = np.asarray(data, dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(f"data must be a real array; got {type(data).__name__}") from None
+        data = real_array("data", data)
         if data.ndim == 0 or data.shape[-1] != self._n_sensors:
             raise InputError(
                 f"data must have last axis of length {self.n_sensors}; got shape {data.shape}"

@@ -7,7 +7,8 @@ and add ONE line to :data:`COMMANDS` below.
 Errors: any :class:`~olsbayes.errors.OlsBayesError` (bad input, bad config)
 prints one line ``olsbayes: error: ...`` on stderr and exits with status 2; no
 traceback.  Usage errors from argparse do the same.  Warnings are printed as one
-line each (``olsbayes: warning: <Class>: ...``).
+line each (``olsbayes: warning: <Class>: ...``) and, with ``--json``, listed in the
+output object as ``"warnings": [{"category": ..., "message": ...}, ...]``.
 """
 
 from __future__ import annotations
@@ -53,9 +54,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    text = " ".join(str(message).split())
-    print(f"olsbayes: warning: {category.__name__}: {text}", file=sys.stderr)
+def _warning_printer(record: list[dict[str, str]]):
+    """A ``warnings.showwarning`` that prints one line and keeps the warning in ``record``."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        text = " ".join(str(message).split())
+        record.append({"category": category.__name__, "message": text})
+        print(f"olsbayes: warning: {category.__name__}: {text}", file=sys.stderr)
+
+    return show
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -65,13 +72,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors (already printed)
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    args.warnings_seen = []  # what --json reports as "warnings" (see _common.emit)
     with warnings.catch_warnings():
-        warnings.showwarning = _one_line_warning
+        warnings.showwarning = _warning_printer(args.warnings_seen)
         warnings.simplefilter("default", OlsBayesWarning)  # always shown, never fatal
         try:
             return int(args.run(args) or 0)
         except OlsBayesError as exc:
             print(f"olsbayes: error: {' '.join(str(exc).split())}", file=sys.stderr)
+            return 2
+        except RecursionError:  # a pathologically nested input (TOML, --set) not caught earlier
+            print("olsbayes: error: the input is nested too deeply to process", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
             print("olsbayes: interrupted", file=sys.stderr)

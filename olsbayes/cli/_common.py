@@ -28,7 +28,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from .._io import ensure_dir, write_text_atomic
+from .._io import ensure_dir, write_target, write_text_atomic
 from ..config import Config, load_config, parse_config
 from ..errors import InputError
 
@@ -44,6 +44,7 @@ __all__ = [
     "format_table",
     "DEFAULT_CONFIG",
     "write_output",
+    "output_file",
     "output_dir",
 ]
 
@@ -70,10 +71,17 @@ seed = 20260123
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """An ArgumentParser whose usage errors are one line on stderr, exit status 2."""
+    """An ArgumentParser whose usage errors are one line on stderr, exit status 2.
+
+    The line starts ``olsbayes: error:`` for every subcommand (the subcommand is
+    named after it), like the errors of a run.
+    """
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+        top, _, sub = self.prog.partition(" ")
+        where = f"{sub}: " if sub else ""
+        text = " ".join(str(message).split())
+        self.exit(2, f"{top}: error: {where}{text} (see `{self.prog} --help`)\n")
 
 
 def add_command(subparsers: Any, name: str, **kwargs: Any) -> argparse.ArgumentParser:
@@ -156,6 +164,12 @@ def jsonable(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
+        if obj.dtype.kind == "f":  # vectorised: non-finite entries to None
+            out = obj.astype(object)
+            out[~np.isfinite(obj)] = None
+            return out.tolist()
+        if obj.dtype.kind in "biu":
+            return obj.tolist()
         return jsonable(obj.tolist())
     if isinstance(obj, (np.bool_, bool)):
         return bool(obj)
@@ -170,9 +184,14 @@ def jsonable(obj: Any) -> Any:
 
 
 def emit(args: argparse.Namespace, payload: Mapping[str, Any], text: str) -> None:
-    """Print ``payload`` as one JSON object (``--json``) or ``text`` otherwise."""
+    """Print ``payload`` as one JSON object (``--json``) or ``text`` otherwise.
+
+    The JSON object also holds ``"warnings"``: the package warnings the command
+    raised so far (``category`` and ``message``; also printed on stderr).
+    """
     if getattr(args, "json", False):
-        json.dump(jsonable(payload), sys.stdout, allow_nan=False)
+        payload = {**payload, "warnings": list(getattr(args, "warnings_seen", []))}
+        sys.stdout.write(json.dumps(jsonable(payload), allow_nan=False))  # C encoder
         sys.stdout.write("\n")
     else:
         sys.stdout.write(text.rstrip("\n") + "\n")
@@ -197,12 +216,22 @@ def format_table(header: list[str], rows: list[list[Any]], digits: int = 5) -> s
 def write_output(path: str | Path, text: str, name: str = "--out") -> Path:
     """Write ``text`` atomically; InputError (not a traceback) when it cannot be."""
     p = Path(path)
-    if p.is_dir():
-        raise InputError(f"{name} {str(p)!r} is a folder; give a file name")
+    write_target(p, name)  # a folder, FIFO or device is refused before anything is written
     try:
         return write_text_atomic(p, text)
     except OSError as exc:
         raise InputError(f"{name} {str(p)!r} cannot be written: {exc.strerror or exc}") from None
+
+
+def output_file(path: str | Path, name: str = "--out") -> Path:
+    """Check, before any work, that ``path`` can take a result file.
+
+    A regular file, a symbolic link to one, or a new name in a folder that exists
+    or can be created; InputError for a folder, FIFO, device or socket.
+    """
+    real, _ = write_target(path, name)
+    ensure_dir(real.parent if str(real.parent) else Path("."), f"folder of {name}")
+    return Path(path)
 
 
 def output_dir(path: str | Path, name: str = "--out") -> Path:

@@ -2,7 +2,8 @@
 
 Readings come from --data FILE, else from the config's [data] section (a file
 or a simulation of [scene]).  K comes from --n-sources, else from [scene].
-A file with T rows is fitted row by row in one batched call.
+A file with T rows is fitted in one batched call and printed as one table (a line
+per row and source).
 
 With --posterior the ML point seeds an emcee ensemble (olsbayes.posterior) and
 the posterior sd is printed next to the CRLB, with chi^2/dof and the posterior
@@ -48,8 +49,8 @@ from ._common import (
     output_dir,
 )
 
-__all__ = ["register", "run", "fit_payload", "fit_text", "load_fit_inputs", "posterior_block",
-           "angle_unit_of", "in_unit"]
+__all__ = ["register", "run", "fit_payload", "fit_text", "batch_text", "load_fit_inputs",
+           "posterior_block", "angle_unit_of", "in_unit"]
 
 
 def register(subparsers: Any) -> None:
@@ -131,11 +132,13 @@ def _chi2(model: Model, data: np.ndarray, params: np.ndarray) -> np.ndarray:
 
 
 def fit_payload(model: Model, result: Any, truth: Scene | None, data: np.ndarray | None = None,
-                unit: str = "rad") -> dict[str, Any]:
+                unit: str = "rad", std: np.ndarray | None = None) -> dict[str, Any]:
     """JSON-ready dictionary of an :class:`~olsbayes.ml.MLResult`.
 
     Angles in ``unit``; with ``data``, ``chi2`` and ``chi2_dof`` (dof = N - P) of the fit.
+    ``std``: the result's standard errors when already computed (``result.std``).
     """
+    std = result.std if std is None else std
     names = model.param_names(result.n_sources)
     payload: dict[str, Any] = {
         "model": repr(model),
@@ -144,7 +147,7 @@ def fit_payload(model: Model, result: Any, truth: Scene | None, data: np.ndarray
         "param_names": names,
         "angle_unit": unit,
         "params": in_unit(model, names, result.params, unit),
-        "std": in_unit(model, names, result.std, unit),
+        "std": in_unit(model, names, std, unit),
         "log_likelihood": result.log_likelihood,
         "converged": result.converged,
         "rival_gap": result.rival_gap,
@@ -156,7 +159,7 @@ def fit_payload(model: Model, result: Any, truth: Scene | None, data: np.ndarray
     if truth is not None:
         x_true = model.canonical(model.pack(truth))
         payload["truth"] = in_unit(model, names, x_true, unit)
-        payload["error_over_std"] = _z(model, result.params, x_true, result.std)
+        payload["error_over_std"] = _z(model, result.params, x_true, std)
     return payload
 
 
@@ -170,12 +173,13 @@ def _z(model: Model, est: np.ndarray, true: np.ndarray, std: np.ndarray) -> np.n
         return err / std
 
 
+_LOC_NAMES = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}
+
+
 def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = None,
              unit: str = "rad") -> str:
     """Estimate +- Fisher std per source (and the truth, when known) as a table; angles in unit."""
-    names = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}[
-        model.kind
-    ]
+    names = _LOC_NAMES[model.kind]
     flat_names = model.param_names(result.n_sources)
     params = in_unit(model, flat_names,
                      result.params if row is None else result.params[row], unit)
@@ -193,6 +197,37 @@ def fit_text(model: Model, result: Any, truth: Scene | None, row: int | None = N
         lines += ["Truth and error / sd:", format_table(
             ["k", *names, "I", *(f"err/sd({n})" for n in names), "err/sd(I)"], t_rows, 4)]
     return "\n".join(lines)
+
+
+def batch_text(model: Model, result: Any, truth: Scene | None, std: np.ndarray,
+               unit: str = "rad", chi2_dof: np.ndarray | None = None) -> str:
+    """One table of a batch fit: a line per data vector and source.
+
+    Columns: row, k, estimate, Fisher std (angles in ``unit``), the row's
+    log-likelihood and chi^2/dof (on its first source) and, when the truth is known,
+    error / std.  ``std`` (T, P) is ``result.std``, computed once by the caller.
+    """
+    names = _LOC_NAMES[model.kind]
+    k, d1 = result.n_sources, model.n_loc + 1
+    flat_names = model.param_names(k)
+    est = in_unit(model, flat_names, result.params, unit).reshape(-1, k, d1)
+    sd = in_unit(model, flat_names, std, unit).reshape(-1, k, d1)
+    ll = np.asarray(result.log_likelihood, dtype=float)
+    header = ["row", "k", *names, "I", *(f"sd({n})" for n in names), "sd(I)", "log L"]
+    per_row = [ll.repeat(k).tolist()]
+    if chi2_dof is not None:
+        header.append("chi^2/dof")
+        per_row.append(np.broadcast_to(chi2_dof, ll.shape).repeat(k).tolist())
+    cols = [est[..., j] for j in range(d1)] + [sd[..., j] for j in range(d1)]
+    if truth is not None:
+        z = _z(model, result.params, model.canonical(model.pack(truth)), std).reshape(-1, k, d1)
+        header += [f"err/sd({n})" for n in (*names, "I")]
+        cols += [z[..., j] for j in range(d1)]
+    flat = [c.ravel().tolist() for c in cols]
+    rows = [[t // k, t % k, *(c[t] for c in flat[: 2 * d1]),
+             *(r[t] if t % k == 0 else "" for r in per_row), *(c[t] for c in flat[2 * d1 :])]
+            for t in range(ll.size * k)]
+    return format_table(header, rows)
 
 
 def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
@@ -277,13 +312,14 @@ def run(args: argparse.Namespace) -> int:
     record = provenance(seed=seed, data=data)
     if args.data is not None:
         record.update(data_file=str(args.data), data_file_sha256=file_sha256(args.data))
-    payload = fit_payload(model, result, truth, data, unit)
+    std = result.std  # once: (T, P) for a batch
+    payload = fit_payload(model, result, truth, data, unit, std)
     payload["provenance"] = record
     chi = np.atleast_1d(payload["chi2_dof"])
-    if result.is_batch:
-        blocks = [f"row {t}: log-likelihood {float(result.log_likelihood[t]):.6g}, chi^2/dof "
-                  f"{float(chi[t]):.4g}\n" + fit_text(model, result, truth, row=t, unit=unit)
-                  for t in range(result.n_trials)]
+    if args.json:
+        blocks = []  # the text is not printed
+    elif result.is_batch:
+        blocks = [batch_text(model, result, truth, std, unit, chi)]
     else:
         blocks = [f"log-likelihood {float(result.log_likelihood):.6g}, chi^2/dof "
                   f"{float(chi[0]):.4g} (dof {payload['dof']})\n"

@@ -56,7 +56,7 @@ from ._common import (
     emit,
     format_table,
     load_cli_config,
-    output_dir,
+    output_file,
 )
 
 __all__ = ["register", "run"]
@@ -220,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
         if model.kind == "position":
             raise InputError("--figure draws sky maps (sphere) or angles (ring); a plate's "
                              "near sources have none")
-        output_dir(args.figure.parent if str(args.figure.parent) else Path("."), "--figure")
+        output_file(args.figure, "--figure")
     seed = args.seed if args.seed is not None else draw_seed()
     res = image(model, data, dirs, prior, options=options, rng=seed)
     unit = sec.get("_angle_unit", "rad")

@@ -27,6 +27,7 @@ from ._common import (
     add_seed_arg,
     emit,
     load_cli_config,
+    output_file,
     write_output,
 )
 
@@ -76,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"--repeats {reps} x {model.n_sensors} sub-sensors exceeds {MAX_READINGS} readings"
         )
+    if args.out is not None:
+        output_file(args.out, "--out")
     readings = model.simulate(scene, rng=seed, size=reps)
     header = (
         f"olsbayes simulate: {model!r}; {scene!r}; seed={seed}; "

@@ -25,7 +25,8 @@ or keys, wrong types, non-finite or huge numbers and malformed TOML all raise
 """
 
 from . import sections as _sections  # noqa: F401  (registers [sensor], [scene], [data])
-from .loader import load_config, parse_config, read_readings
+from .loader import load_config, parse_config
+from .readings import read_readings
 from .schema import (
     MAX_ABS,
     MAX_CONFIG_BYTES,

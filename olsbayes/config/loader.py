@@ -1,4 +1,4 @@
-"""Reading configuration files and data files: TOML parsing, overrides, readings."""
+"""Reading configuration files: TOML parsing, ``--set`` overrides, validation."""
 
 from __future__ import annotations
 
@@ -8,19 +8,16 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from ..errors import ConfigError, OlsBayesError
+from ..errors import ConfigError
 from .schema import (
     MAX_CONFIG_BYTES,
-    MAX_DATA_BYTES,
     Config,
     get_section,
     registered_sections,
     validate_section,
 )
 
-__all__ = ["parse_config", "load_config", "read_readings"]
+__all__ = ["parse_config", "load_config"]
 
 
 def _apply_overrides(doc: dict[str, Any], overrides: Mapping[str, Any]) -> None:
@@ -117,56 +114,3 @@ def load_config(
         text, sections, required=required, source=str(p), base_dir=p.resolve().parent,
         overrides=overrides,
     )
-
-
-def read_readings(
-    path: str | os.PathLike, n_sensors: int | None = None, name: str = "data file"
-) -> np.ndarray:
-    """Readings from a text (whitespace- or comma-separated, ``#`` comments) or .npy file.
-
-    Returns shape (N,) for one row, (T, N) for T rows of N readings each.
-    ConfigError when the file is missing, unparsable, non-finite, empty or its
-    rows do not hold ``n_sensors`` readings.
-    """
-    p = Path(path)
-    try:
-        if not p.is_file():
-            raise ConfigError(f"{name} {str(p)!r} does not exist or is not a file")
-        if p.stat().st_size > MAX_DATA_BYTES:
-            raise ConfigError(f"{name} {str(p)!r} is larger than {MAX_DATA_BYTES} bytes")
-        if p.suffix.lower() == ".npy":
-            arr = np.load(p, allow_pickle=False)
-        else:
-            text = p.read_text(encoding="utf-8")
-            rows = []
-            for line in text.splitlines():
-                line = line.split("#", 1)[0].replace(",", " ").strip()
-                if line:
-                    rows.append([float(tok) for tok in line.split()])
-            if len({len(r) for r in rows}) > 1:
-                raise ConfigError(f"{name} {str(p)!r} has rows of different lengths")
-            arr = np.array(rows, dtype=float)
-            if arr.ndim == 2 and arr.shape[0] == 1:
-                arr = arr[0]
-            elif arr.ndim == 2 and arr.shape[1] == 1 and n_sensors not in (None, 1):
-                arr = arr[:, 0]  # one reading per line
-    except OlsBayesError:
-        raise
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{name} {str(p)!r} cannot be read as numbers: {exc}") from None
-    arr = np.asarray(arr, dtype=float) if arr.dtype != object else arr
-    if arr.dtype.kind not in "fiu" or arr.ndim not in (1, 2) or arr.size == 0:
-        raise ConfigError(
-            f"{name} {str(p)!r} must hold a non-empty table of numbers; got shape {arr.shape}"
-        )
-    arr = arr.astype(float)
-    if not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{name} {str(p)!r} holds nan or inf readings")
-    if n_sensors is not None and arr.shape[-1] != n_sensors:
-        raise ConfigError(
-            f"{name} {str(p)!r} rows hold {arr.shape[-1]} readings; the sensor has "
-            f"{n_sensors} sub-sensors"
-        )
-    return arr
-
-

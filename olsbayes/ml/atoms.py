@@ -12,14 +12,15 @@ import hashlib
 
 import numpy as np
 
+from .._budget import check_memory
 from .._validation import finite_array, positive_float
 from ..circular import wrap_angle
 from ..errors import InputError
 from ..geometry import lonlat_to_unit
 from ..model import Model
 
-__all__ = ["default_grid", "cached_default_grid", "check_grid", "atoms", "grid_step",
-           "NEIGHBOUR"]
+__all__ = ["default_grid", "default_grid_size", "cached_default_grid", "check_grid",
+           "check_atom_memory", "atoms", "grid_step", "NEIGHBOUR"]
 
 #: Normalised-atom correlation above which two atoms count as one basin (the
 #: neighbourhood of an atom in the searches of the fast fit).
@@ -67,11 +68,27 @@ def default_grid(model: Model, density: float | None = None) -> np.ndarray:
     if density is None:
         density = 8.0 if model.kind == "position" else 4.0
     density = positive_float("density", density)
+    if model.kind == "position":  # the pitch comes from all pairs of sub-sensors
+        check_memory(f"the default plate grid of {model.n_sensors} sub-sensors (all pairs)",
+                     16.0 * model.n_sensors**2)
     if model.kind == "angle":
         return _ring_grid(model, density)
     if model.kind == "lonlat":
         return _sphere_grid(model, density)
     return _plate_grid(model, density)
+
+
+def default_grid_size(model: Model) -> int:
+    """Number M of locations of :func:`default_grid` at the default density.
+
+    Counted without building the grid for rings and spheres (a plate's grid is
+    built, and cached, to count it).
+    """
+    if model.kind == "angle":
+        return int(max(128, np.ceil(4.0 * model.n_sensors)))
+    if model.kind == "lonlat":
+        return int(np.clip(np.ceil(4.0 * model.n_sensors), 1024, 8192))
+    return int(cached_default_grid(model).shape[0])
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -85,6 +102,17 @@ def cached_default_grid(model: Model) -> np.ndarray:
     The cached grid is read-only.
     """
     return model.memo("default_grid", lambda: _readonly(default_grid(model)))
+
+
+def check_atom_memory(model: Model, n_grid: int, n_rows: int) -> None:
+    """Refuse a fast fit whose atoms (M, N) and search arrays exceed the memory budget.
+
+    ``n_grid`` candidate locations M, ``n_rows`` data vectors searched together; the
+    search keeps a few (rows, M) arrays besides the (M, N) atoms.
+    """
+    n = model.n_sensors
+    check_memory(f"the fast fit's {n_grid} candidate locations x {n} sub-sensors "
+                 f"({n_rows} data vectors at once)", 8.0 * n_grid * (n + 6 * n_rows))
 
 
 def check_grid(model: Model, grid: object) -> np.ndarray:

@@ -83,6 +83,8 @@ FEAS_RTOL = 1e-12
 RERANK_RTOL = 1e-10
 #: Near-best configurations kept per data vector for the direct re-ranking.
 _MAX_CANDIDATES = 64
+#: Candidate configurations re-solved together (bounds the QR work arrays).
+_RESOLVE_BLOCK = 8192
 #: Merge tolerance (rad) of coincident crossing angles.
 MERGE_TOL = 1e-9
 
@@ -284,6 +286,12 @@ def enumerate_optimum(model: Model, data: np.ndarray, n_sources: int, *,
     _, cstate, count, n_feas, n_conf = exact.scan(
         gram, s @ cols, units, n_sources, margin, RANK_RTOL, FEAS_RTOL, _MAX_CANDIDATES,
         count_feasible)
-    x, ll = _best_params(model, c, width, cols, s, cstate, count)
+    # candidates re-solved in blocks of rows: bounded memory when many configurations
+    # tie (all-zero readings keep _MAX_CANDIDATES per row)
+    step = max(1, _RESOLVE_BLOCK // _MAX_CANDIDATES)
+    parts = [_best_params(model, c, width, cols, s[i : i + step], cstate[i : i + step],
+                          count[i : i + step]) for i in range(0, s.shape[0], step)]
+    x = np.concatenate([q[0] for q in parts])
+    ll = np.concatenate([q[1] for q in parts])
     return ExactSolution(params=x, log_likelihood=ll, n_configurations=int(n_conf),
                          n_feasible=n_feas)

@@ -8,13 +8,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._budget import check_memory
 from .._validation import as_rng
 from ..bounds import SINGULAR_RTOL, bound_covariance
 from ..errors import ConvergenceWarning, InputError, MultimodalWarning
 from ..model import Model
-from .atoms import cached_default_grid, check_grid
+from .atoms import cached_default_grid, check_atom_memory, check_grid, default_grid_size
 from .exact import check_exact, enumerate_optimum
 from .fast import FastOptions, fit_fast
+from .honesty import warn_honesty
 from .inputs import check_fit_inputs
 from .multistart import MultistartOptions, fit_multistart
 from .outcome import FitOutcome
@@ -86,6 +88,15 @@ _DEFAULT_OPTIONS = {FastOptions: FastOptions(), MultistartOptions: MultistartOpt
 #: Accepted values of ``method``.
 METHODS = tuple(_METHODS)
 
+#: Data vectors fitted together: the working memory of a fit grows with this, not
+#: with the number of rows (a batch equals a loop of single fits).
+BLOCK_ROWS = 2048
+
+
+def _result_bytes(p: int) -> int:
+    """Bytes of an MLResult per data vector of P parameters (cov, params, scalars, gap)."""
+    return 8 * (p * p + p + 6)
+
 
 def _check_options(model: Model, k: int, method: object, options: object) -> object:
     """The method's options, validated and resolved for the model and K."""
@@ -145,9 +156,13 @@ def fit_ml(
     rng : Generator, int or None
         Randomness of the multistart starts; the other methods are deterministic.
     warn : bool
-        Warn :class:`~olsbayes.errors.ConvergenceWarning` when a fit did not converge,
-        :class:`~olsbayes.errors.MultimodalWarning` when a distinct local optimum is
-        within 3 of a fit's log-likelihood (``MLResult.rival_gap``).
+        Warn :class:`~olsbayes.errors.ConvergenceWarning` when a fit did not converge
+        or does not describe the readings (chi^2 / sigma^2 in a tail of the chi-squared
+        law of N - P degrees of freedom, p < 1e-3 for the batch;
+        :mod:`olsbayes.ml.honesty`), :class:`~olsbayes.errors.ResolutionWarning` when
+        a standard error is infinite or NaN, :class:`~olsbayes.errors.MultimodalWarning`
+        when a distinct local optimum is within 3 of a fit's log-likelihood
+        (``MLResult.rival_gap``).  Warnings never change the result.
 
     Returns
     -------
@@ -158,23 +173,53 @@ def fit_ml(
     Raises
     ------
     InputError
-        Bad model, data (wrong length, non-finite, more than 2-D), n_sources, method,
-        options (of another method, or out of range) or grid.
+        Bad model, data (not real numbers, wrong length, non-finite, more than 2-D,
+        far from sigma), n_sources, method, options (of another method, or out of
+        range) or grid; more rows than the memory budget (:mod:`olsbayes._budget`).
     """
     arr, k = check_fit_inputs(model, data, n_sources)
     opts = _check_options(model, k, method, options)
     # deterministic methods: validate an rng given, but draw no OS entropy for None
     gen = as_rng(rng) if method == "multistart" or rng is not None else None
-    g = cached_default_grid(model) if grid is None else check_grid(model, grid)
     batch = arr.ndim == 2
     s = arr if batch else arr[None, :]
+    p = model.n_params(k)
+    check_memory(f"fit_ml of {s.shape[0]} data vector(s) x {p} parameters",
+                 s.shape[0] * _result_bytes(p))
+    if grid is not None:
+        grid = check_grid(model, grid)
+    if method == "fast":
+        m = default_grid_size(model) if grid is None else grid.shape[0]
+        check_atom_memory(model, m, min(s.shape[0], BLOCK_ROWS))
+    g = cached_default_grid(model) if grid is None else grid
+    # rows in blocks, in order (one rng stream): the working arrays of a block are
+    # bounded whatever the number of rows
+    parts = [_fit_block(model, s[i : i + BLOCK_ROWS], k, method, g, opts, gen)
+             for i in range(0, s.shape[0], BLOCK_ROWS)]
+    x, ll, cov, gap, conv, nev = (np.concatenate([q[j] for q in parts]) for j in range(6))
+    if warn:
+        _warn(method, gap, conv)
+        warn_honesty(model, x, ll, cov, method)
+    sel = (lambda a: a) if batch else (lambda a: a[0])
+    return MLResult(params=sel(x), log_likelihood=sel(ll), converged=sel(conv),
+                    n_evaluations=sel(nev), cov=sel(cov), rival_gap=sel(gap),
+                    method=method, n_sources=k, model=model)
+
+
+def _fit_block(model: Model, s: np.ndarray, k: int, method: str, g: np.ndarray, opts: object,
+               gen: np.random.Generator | None) -> tuple[np.ndarray, ...]:
+    """Fit the rows ``s`` (T, N): (x, log L, cov, rival gap, converged, evaluations)."""
     scale = reading_scales(s)  # readings far from order 1: fitted in scaled units
     scaled = bool(np.any(scale != 1.0))
     out = _METHODS[method].run(model, s / scale[:, None] if scaled else s, k, g, opts, gen,
                                scale)
     if scaled:
         out = rescale(model, out, scale)
-    return _result(model, s, k, method, out, batch, warn)
+    x = model.canonical(out.x)
+    ll, cov = _statistics(model, x, s)
+    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    gap = rival_gap(model, x, out.chi2, out.alternatives, std)
+    return x, ll, cov, gap, out.converged, out.n_evaluations
 
 
 def _statistics(model: Model, x: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -204,7 +249,7 @@ def _warn(method: str, gap: np.ndarray, converged: np.ndarray) -> None:
             "covariance understates the uncertainty; see MLResult.rival_gap, or sample the "
             "posterior (olsbayes.sample_posterior)",
             MultimodalWarning,
-            stacklevel=4,
+            stacklevel=3,
         )
     if not np.all(converged):
         bad = int(np.sum(~converged))
@@ -212,20 +257,5 @@ def _warn(method: str, gap: np.ndarray, converged: np.ndarray) -> None:
             f"{bad} of {converged.size} ML fit(s) ({method}) did not meet the "
             "convergence criterion of the local optimiser; see MLResult.converged",
             ConvergenceWarning,
-            stacklevel=4,
+            stacklevel=3,
         )
-
-
-def _result(model: Model, s: np.ndarray, k: int, method: str, out: FitOutcome, batch: bool,
-            warn: bool) -> MLResult:
-    """The MLResult of an outcome: canonical order, statistics, rivals, warnings."""
-    x = model.canonical(out.x)
-    ll, cov = _statistics(model, x, s)
-    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
-    gap = rival_gap(model, x, out.chi2, out.alternatives, std)
-    if warn:
-        _warn(method, gap, out.converged)
-    sel = (lambda a: a) if batch else (lambda a: a[0])
-    return MLResult(params=sel(x), log_likelihood=sel(ll), converged=sel(out.converged),
-                    n_evaluations=sel(out.n_evaluations), cov=sel(cov), rival_gap=sel(gap),
-                    method=method, n_sources=k, model=model)

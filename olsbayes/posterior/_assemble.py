@@ -9,10 +9,13 @@ draw, drawn from the same stream as the prior draws, after them.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..bounds import bound_covariance
 from ..circular import circular_mean
+from ..errors import ConvergenceWarning
 from ..model import Model
 from ..priors import ScenePrior
 from ._arviz import to_inference_data
@@ -32,11 +35,21 @@ PRIOR_DRAWS = 2000
 
 def _kept_steps(tau: np.ndarray, n_steps: int, options: SamplerOptions
                 ) -> tuple[np.ndarray, int, int]:
-    """Indices of the stored steps, the burn-in and the thinning actually used."""
+    """Indices of the stored steps, the burn-in and the thinning actually used.
+
+    An explicit ``n_burn`` is honoured when the run is longer; otherwise (a run that
+    stopped early) the first half is discarded, with a warning.
+    """
     n_burn = options.n_burn
     if n_burn is None:
         n_burn = int(np.ceil(5 * np.nanmax(tau))) if np.all(np.isfinite(tau)) else n_steps // 2
-    n_burn = min(n_burn, n_steps // 2)
+        n_burn = min(n_burn, n_steps // 2)
+    elif n_burn >= n_steps:
+        warnings.warn(f"n_burn={n_burn} is not below the {n_steps} steps the run took (it "
+                      f"stopped early, its convergence criteria met): the first half, "
+                      f"{n_steps // 2} steps, is discarded instead", ConvergenceWarning,
+                      stacklevel=4)
+        n_burn = n_steps // 2
     thin = max(options.thin, int(np.ceil((n_steps - n_burn) / MAX_STORED_DRAWS)))
     return np.arange(n_burn, n_steps)[::thin], n_burn, thin
 

@@ -11,7 +11,8 @@ from ..bounds import kink_sources
 from ..circular import wrap_angle
 from ._arviz import summary_frame
 
-__all__ = ["summary", "crlb_check", "CRLBCheck", "at_prior_bound", "BOUND_LEVEL"]
+__all__ = ["summary", "crlb_check", "CRLBCheck", "at_prior_bound", "BOUND_LEVEL",
+           "narrower_than_crlb"]
 
 class PosteriorDraws(Protocol):
     """What the audit reads of a posterior (a :class:`~olsbayes.posterior.PosteriorResult`).
@@ -291,3 +292,49 @@ def crlb_check(result: PosteriorDraws, rtol: float = 0.2) -> CRLBCheck:
     reasons = tuple("; ".join(r) for r in _reasons(result, table, crlb_sd))
     return CRLBCheck(names=result.names, posterior_sd=post_sd, crlb_sd=crlb_sd, ratio=ratio,
                      mc_error=mc, flagged=flagged, reasons=reasons)
+
+
+def narrower_than_crlb(result: PosteriorDraws, rtol: float = 0.2
+                       ) -> list[tuple[str, float, float]]:
+    """Source parameters whose posterior sd is far below the CRLB at high SNR.
+
+    At high SNR (I / CRLB sd of I >= :data:`LOW_SNR`) the posterior of a smooth
+    likelihood is Gaussian with the inverse Fisher covariance, so a posterior sd
+    below ``1 - max(rtol, 3 mc)`` times the CRLB (mc: the relative Monte Carlo
+    error of an sd from ``W (steps - burn-in) / tau`` effective draws) means the
+    walkers did not explore the posterior -- unless a known cause narrows it: a
+    prior boundary within 3 CRLB sd of any parameter of the source, a sub-sensor
+    horizon (kink) near the direction, an unidentifiable parameter.  Those are not reported here
+    (:func:`crlb_check` lists every cause).  Cheap: numpy moments, no ArviZ.
+
+    Returns
+    -------
+    list of (name, ratio, snr)
+        Posterior sd / CRLB sd and the SNR of the parameter's source.
+    """
+    k, w = result.n_sources, result.prior.n_loc + 1
+    if k == 0:
+        return []
+    x = result.unwrapped_samples()
+    n_walkers = x.shape[0]
+    sd = x.reshape(-1, x.shape[-1]).std(axis=0, ddof=1)[: k * w]
+    crlb_sd = result.crlb_std[: k * w]
+    est = result.estimate[: k * w]
+    tau = np.maximum(np.asarray(result.tau, dtype=float)[: k * w], 1.0)
+    n_eff = np.minimum(n_walkers * (result.n_steps - result.n_burn) / tau, x.shape[0] * x.shape[1])
+    mc = 1.0 / np.sqrt(2.0 * np.maximum(n_eff, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = sd / crlb_sd
+        snr = np.repeat(est[w - 1 :: w] / crlb_sd[w - 1 :: w], w)
+    kink = np.repeat(_near_kink(result, result.crlb_std), w)
+    # a parameter within 3 CRLB sd of a prior bound: the CRLB of its whole source is
+    # evaluated at a clipped estimate, so none of that source's parameters is reported
+    edge = np.array([not prior.periodic and min(est[j] - prior.lower, prior.upper - est[j])
+                     < 3 * crlb_sd[j] for j, prior in enumerate(result.prior.marginals[: k * w])])
+    edge = np.repeat(edge.reshape(k, w).any(axis=1), w)
+    out = []
+    for j in range(k * w):
+        if (np.isfinite(crlb_sd[j]) and crlb_sd[j] > 0 and snr[j] >= LOW_SNR and not edge[j]
+                and not kink[j] and ratio[j] < 1.0 - max(rtol, 3 * mc[j])):
+            out.append((result.names[j], float(ratio[j]), float(snr[j])))
+    return out

@@ -76,8 +76,11 @@ class SamplerOptions:
     check_every : int
         Steps between convergence checks (>= 1).
     n_burn : int or None
-        Steps discarded as burn-in (>= 0); None: ``ceil(5 max(tau))``.  At most
-        half the chain is discarded.
+        Steps discarded as burn-in, 0 <= n_burn < the step limit (``n_steps`` or
+        ``max_steps``); honoured exactly when the run is longer.  None:
+        ``ceil(5 max(tau))``, at most half the chain.  A run that stops early (its
+        convergence criteria held) at or before an explicit ``n_burn`` keeps its
+        second half, with a :class:`~olsbayes.errors.ConvergenceWarning`.
     thin : int
         Keep every ``thin``-th step (>= 1; more if needed to keep <= 5000 draws
         per walker).
@@ -131,6 +134,10 @@ class SamplerOptions:
         }
         for name, value in checked.items():
             object.__setattr__(self, name, value)
+        if self.n_burn is not None and self.n_burn >= self.step_limit:
+            which = "n_steps" if self.n_steps is not None else "max_steps"
+            raise InputError(f"n_burn must be < {which} = {self.step_limit} (some steps must "
+                             f"remain after the burn-in); got {self.n_burn}")
 
     @property
     def step_limit(self) -> int:

@@ -7,15 +7,17 @@ import warnings
 
 import numpy as np
 
+from .._budget import check_memory
 from .._provenance import draw_seed, provenance, seed_of
 from .._validation import as_rng, integer
 from ..errors import ConvergenceWarning, InputError, PriorBoundWarning
 from ..model import Model
 from ..priors import ScenePrior, default_priors
-from ._assemble import assemble
+from ._assemble import MAX_STORED_DRAWS, assemble
 from ._logpost import LogPosterior, cut_shift
 from ._run import make_sampler, run_ensemble
 from ._start import check_start, initial_walkers
+from .audit import narrower_than_crlb
 from .options import SamplerOptions
 from .result import PosteriorResult
 
@@ -49,6 +51,20 @@ def _check_options(options: object, n_params: int) -> tuple[SamplerOptions, int]
     if n_walkers < 2 * n_params:
         raise InputError(f"n_walkers must be >= 2 * n_params = {2 * n_params}; got {n_walkers}")
     return options, n_walkers
+
+
+def _check_memory(n_walkers: int, n_params: int, n_sensors: int, steps: int) -> None:
+    """Refuse runs whose stored arrays exceed the memory budget, before any allocation.
+
+    emcee allocates the whole chain (steps, W, P) and log-probabilities (steps, W) at
+    the start; the result keeps at most MAX_STORED_DRAWS draws per walker of the
+    parameters (a few copies while relabelling) and of the pointwise log-likelihood
+    (W, D, N).
+    """
+    kept = min(steps, MAX_STORED_DRAWS)
+    nbytes = 8.0 * n_walkers * (steps * (n_params + 1) + kept * (3 * n_params + n_sensors))
+    check_memory(f"n_walkers={n_walkers} x {steps} steps x {n_params} parameters "
+                 f"({n_sensors} readings)", nbytes)
 
 
 def _start_coordinates(logpost: LogPosterior, walkers: np.ndarray) -> np.ndarray:
@@ -123,6 +139,7 @@ def sample(
     data, k = _check_scene(model, data, n_sources)
     prior = _check_prior(model, k, priors, data)
     options, n_walkers = _check_options(options, prior.n_params)
+    _check_memory(n_walkers, prior.n_params, model.n_sensors, options.step_limit)
     start = check_start(model, prior, start, n_walkers)
     if not isinstance(progress, (bool, np.bool_)):
         raise InputError(f"progress must be True or False; got {progress!r}")
@@ -161,9 +178,27 @@ def sample(
             PriorBoundWarning,
             stacklevel=2,
         )
-    return PosteriorResult(converged=converged, elapsed=elapsed,
-                           n_evaluations=logpost.n_calls, seed=seed, provenance=record,
-                           **fields)
+    result = PosteriorResult(converged=converged, elapsed=elapsed,
+                             n_evaluations=logpost.n_calls, seed=seed, provenance=record,
+                             **fields)
+    if options.use_likelihood:
+        _warn_narrow(result)
+    return result
+
+
+def _warn_narrow(result: PosteriorResult) -> None:
+    """ConvergenceWarning when a posterior sd is far below its CRLB at high SNR."""
+    narrow = narrower_than_crlb(result)
+    if narrow:
+        what = ", ".join(f"{name} {ratio:.2f}x (SNR {snr:.0f})" for name, ratio, snr in narrow)
+        warnings.warn(
+            f"posterior sd far below the CRLB at high SNR: {what}; no unbiased estimate is "
+            "this precise, so the walkers have likely not explored the whole posterior "
+            "(a multimodal or poorly mixed run): run longer or from another start, and see "
+            "PosteriorResult.crlb_check()",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
 
 
 def _check_scene(model: object, data: object, n_sources: object) -> tuple[np.ndarray, int]:

@@ -161,6 +161,13 @@ def finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict[
     prob /= prob.sum()
     best, notes = choose(score, decision.tie)
     notes += _notes(works, score, best, method, decision)
+    k_max = len(works) - 1
+    if best == k_max >= 1:
+        edge = (f"the chosen K = {best} is k_max: p(K) is cut at k_max and more sources "
+                f"were not considered (posterior log odds of K={best} over K={best - 1}: "
+                f"{score[best] - score[best - 1]:.1f} nats); rerun with a larger k_max")
+        notes.insert(0, edge)
+        warnings.warn(edge, EvidenceWarning, stacklevel=3)
     untrusted_best = (works[best].method == "laplace" and works[best].reasons) or (
         mixture_doubt(works[best]))
     if untrusted_best and method == "laplace":

@@ -24,6 +24,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
+from .._budget import check_memory
 from .._validation import as_rng, integer, positive_float
 from ..errors import InputError
 from ..model import Model
@@ -127,7 +128,27 @@ def _check(model: object, data: object, k_max: object, method: object, options: 
     if method in ("auto", "nested") and k_max and n_live is not None and n_live <= p_max:
         raise InputError(f"n_live must exceed the {p_max} parameters of k_max = {k_max} "
                          f"sources (method {method!r} may sample them); got {n_live}")
+    _check_memory(model, k_max, method, options)
     return data, k_max, options
+
+
+def _check_memory(model: Model, k_max: int, method: str, options: SelectOptions) -> None:
+    """Refuse samplers whose arrays exceed the memory budget, before the first fit.
+
+    Importance sampling evaluates up to twice its draws at once, each a response of
+    K sources on N readings; a nested run keeps its live points and at most one
+    saved point per likelihood call (``maxcall``).
+    """
+    n, p_max = model.n_sensors, k_max * (model.n_loc + 1)
+    draws = options.laplace.importance_draws
+    if method in ("auto", "laplace") and draws and k_max:
+        check_memory(f"importance_draws={draws} x {n} readings x K <= {min(k_max, 5)}",
+                     8.0 * 2 * draws * n * (min(k_max, 5) + 2))
+    if method in ("auto", "nested") and k_max:
+        nested = options.nested
+        live = nested.n_live if nested.n_live is not None else max(100, 25 * p_max)
+        check_memory(f"n_live={live} and maxcall={nested.maxcall} x {p_max} parameters",
+                     8.0 * (live * (n + p_max) * 4 + nested.maxcall * (p_max + 4)))
 
 
 def select_k(

@@ -252,9 +252,9 @@ def test_config_build_bad_input(label, text, match, tmp_path):
     [
         ("1 2 3\n", "rows hold 3 readings"),
         ("1 2 nan " + "0 " * 27 + "\n", "nan or inf"),
-        ("hello world\n", "cannot be read"),
+        ("hello world\n", "line 1, field 1 is not a number"),
         ("# only a comment\n", "non-empty"),
-        ("1 2\n1 2 3\n", "different lengths"),
+        ("1 2\n1 2 3\n", "different lengths: line 2 holds 3 numbers, line 1 holds 2"),
     ],
 )
 def test_data_file_bad_content(tmp_path, content, match):
@@ -267,7 +267,7 @@ def test_data_file_bad_content(tmp_path, content, match):
 def test_data_file_binary_and_npy(tmp_path):
     garbage = tmp_path / "r.txt"
     garbage.write_bytes(b"\xff\xfe\x00\x01" * 10)
-    with pytest.raises(ob.ConfigError, match="cannot be read"):
+    with pytest.raises(ob.ConfigError, match="not UTF-8 text"):
         read_readings(garbage, 30)
     cube = tmp_path / "r.npy"
     np.save(cube, np.zeros((2, 2, 30)))
@@ -275,7 +275,7 @@ def test_data_file_binary_and_npy(tmp_path):
         read_readings(cube, 30)
     pickled = tmp_path / "p.npy"
     np.save(pickled, np.array([{"a": 1}], dtype=object), allow_pickle=True)
-    with pytest.raises(ob.ConfigError, match="cannot be read"):
+    with pytest.raises(ob.ConfigError, match="real numbers.*object"):
         read_readings(pickled, 30)
 
 

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from olsbayes import Model, PriorBoundWarning, Ring, fit_ml
+from olsbayes import ConvergenceWarning, Model, PriorBoundWarning, Ring, fit_ml
 from olsbayes.posterior import PosteriorResult, SamplerOptions, sample
 from olsbayes.posterior._arviz import import_arviz
 from olsbayes.priors import default_priors
@@ -106,8 +106,9 @@ def test_model_check_calibrated_fit_and_a_missed_source(fig3):
     assert good.dof == 30 - 4
     assert abs(good.chi2_dof - 1) < 3 * np.sqrt(2 / good.dof), good
     assert good.ppp > 0.01, good
-    bad = sample(model, data, 1, rng=7, progress=False,
-                 options=SamplerOptions(n_steps=300)).model_check()
+    with pytest.warns(ConvergenceWarning, match="do not describe the readings"):
+        bad = sample(model, data, 1, rng=7, progress=False,
+                     options=SamplerOptions(n_steps=300)).model_check()
     assert bad.chi2_dof > 10 and bad.ppp < 0.01, bad
 
 

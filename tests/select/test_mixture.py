@@ -90,6 +90,7 @@ def test_exact_reference_reproduces_the_closed_form_of_one_flat_source():
     assert abs(ref - log_z) < 3 * se + 1e-3
 
 
+@pytest.mark.filterwarnings("ignore:the chosen K = .* is k_max")  # k_max = the truth, by design
 @pytest.mark.parametrize("case", ["weak", "over-complete", "singular", "separated"])
 def test_mixture_evidence_matches_the_exact_evidence(case):
     """Awkward K on small ring problems: a weak single source (Laplace: intensity a few
@@ -128,6 +129,7 @@ def test_mixture_evidence_matches_the_exact_evidence(case):
         assert abs(res[k].laplace - out.log_evidence) < 0.3
 
 
+@pytest.mark.filterwarnings("ignore:the chosen K = .* is k_max")  # k_max = the truth, by design
 def test_a_non_flat_intensity_prior_by_quadrature():
     """The general path (one intensity draw per location, weight pi(I)) on a weak single
     source with a LogUniform(0.01, 2) intensity prior, against 2-D quadrature over

@@ -28,7 +28,8 @@ def escalate(model: Model, data: np.ndarray, out: FitOutcome, opts: FastOptions)
     ``out`` holds fits (T, 2K) of ``data`` (T, N) of a ring with the clipped
     cosine.  A fit is escalated when two of its sources are closer than
     ``opts.close_spacings`` sensor spacings (2 pi / N) or its weakest intensity is
-    at most ``opts.weak_ratio`` times the strongest.  Evaluation counts are not
+    at most ``opts.weak_ratio`` times the strongest, unless it fits the readings
+    exactly (chi^2 = 0: nothing can fit better).  Evaluation counts are not
     changed (the enumeration solves linear least-squares problems, it does not
     evaluate the model).
     """
@@ -37,7 +38,8 @@ def escalate(model: Model, data: np.ndarray, out: FitOutcome, opts: FastOptions)
     k = out.x.shape[1] // 2
     x = out.x
     close = opts.close_spacings * 2 * np.pi / model.n_sensors
-    rows = np.flatnonzero(compiled.close_or_weak(x, close, opts.weak_ratio))
+    # a fit with chi^2 = 0 (all-zero readings, say) is already a global optimum
+    rows = np.flatnonzero(compiled.close_or_weak(x, close, opts.weak_ratio) & (out.chi2 > 0))
     if rows.size == 0:
         return out
     ex = enumerate_optimum(model, data[rows], k).params
