@@ -31,7 +31,7 @@ import numpy as np
 from ._io import atomic_path
 from .errors import InputError
 
-__all__ = ["encode", "decode", "save_result", "load_result", "UnstorableModel"]
+__all__ = ["encode", "decode", "save_result", "load_result", "storable", "UnstorableModel"]
 
 #: Attribute holding the JSON tree.
 TREE_ATTR = "olsbayes_tree"
@@ -51,23 +51,31 @@ class UnstorableModel:
         return f"UnstorableModel({self.description!r})"
 
 
+#: The result classes a file may name, registered by :func:`storable` where they are defined.
+_RESULTS: dict[str, type] = {}
+
+
+def storable(cls: type) -> type:
+    """Class decorator: let a stored file name ``cls`` (it joins the allow-list).
+
+    The result classes register themselves where they are defined, so this module
+    does not import the wings above it.
+    """
+    _RESULTS[cls.__name__] = cls
+    return cls
+
+
 def _registry() -> dict[str, type]:
-    """The classes a file may name: the package's results, models and priors."""
+    """The classes a file may name: the registered results, models, arrays, laws, priors."""
     from . import geometry, sensitivity
-    from .imaging.binary import BinaryMap
-    from .imaging.design import Design
-    from .imaging.result import ImageResult
-    from .ml.result import MLResult
     from .model import Model
     from .priors import scene as scene_priors
     from .priors import univariate
-    from .select.result import KEvidence, SelectionResult
 
-    classes = [MLResult, KEvidence, SelectionResult, ImageResult, Design, BinaryMap, Model,
-               geometry.SensorArray, geometry.Ring, geometry.Sphere, geometry.Plate,
+    classes = [Model, geometry.SensorArray, geometry.Ring, geometry.Sphere, geometry.Plate,
                sensitivity.Cosine, sensitivity.CosinePower, scene_priors.ScenePrior]
     classes += [getattr(univariate, name) for name in univariate.__all__ if name != "Prior"]
-    return {cls.__name__: cls for cls in classes}
+    return {**_RESULTS, **{cls.__name__: cls for cls in classes}}
 
 
 def _stateful(obj: object) -> bool:

@@ -20,14 +20,7 @@ import numpy as np
 
 from ._frozen import Frozen
 from ._nearfield import near_gain, near_jacobian_t
-from ._validation import (
-    as_rng,
-    check_reading_range,
-    finite_array,
-    integer,
-    noise_sd,
-    real_array,
-)
+from ._validation import as_rng, check_reading_range, finite_array, integer, noise_sd, real_array
 from .circular import wrap_angle
 from .errors import InputError
 from .geometry import SensorArray, lonlat_to_unit

@@ -30,11 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog
 
+from .._store import storable
 from ..errors import ConvergenceWarning
 
 __all__ = ["BinaryMap", "sparse_relaxation", "two_level_log_posterior", "two_level_map"]
 
 
+@storable
 @dataclass(frozen=True)
 class BinaryMap:
     """Outcome of the two-level MAP search.

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._store import storable
 from .._validation import finite_array
 from ..errors import InputError
 from ..model import Model
@@ -95,6 +96,7 @@ def design_matrix(model: Model, directions: object) -> np.ndarray:
     return a
 
 
+@storable
 @dataclass(frozen=True)
 class Design:
     """What a design matrix can and cannot measure.

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._store import load_result, save_result, storable
 from .binary import BinaryMap
 from .design import Design
 
@@ -66,6 +67,7 @@ def split_rhat(chains: np.ndarray) -> np.ndarray:
     return np.where(w > 0, r, np.where(b > 0, np.inf, 1.0))
 
 
+@storable
 @dataclass(frozen=True)
 class ImageResult:
     """Posterior of source intensities at known directions.
@@ -213,15 +215,11 @@ class ImageResult:
         recorded with the package version and the command line.
         """
         from .._provenance import provenance
-        from .._store import save_result
-
         return save_result(self, path, provenance(seed=seed, data=data))
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> ImageResult:
         """Read a result written by :meth:`save`."""
-        from .._store import load_result
-
         return load_result(path, cls)
 
     def __repr__(self) -> str:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._store import load_result, save_result, storable
 from .._validation import integer
 from ..errors import InputError
 from ..model import Model
@@ -16,6 +17,7 @@ from ..scene import Scene
 __all__ = ["MLResult"]
 
 
+@storable
 @dataclass(frozen=True, eq=False)
 class MLResult:
     """Maximum-likelihood estimate(s) of Eq. 2.
@@ -143,8 +145,6 @@ class MLResult:
             The seed of the fit, recorded.
         """
         from .._provenance import provenance
-        from .._store import save_result
-
         return save_result(self, path, provenance(seed=seed, data=data))
 
     @classmethod
@@ -154,8 +154,6 @@ class MLResult:
         ``model`` is needed only for a model with a custom sensitivity law, which
         cannot be stored.
         """
-        from .._store import load_result
-
         return load_result(path, cls, model=model)
 
     def __repr__(self) -> str:

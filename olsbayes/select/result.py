@@ -12,9 +12,12 @@ from typing import Any
 
 import numpy as np
 
+from .._store import load_result, save_result, storable
+
 __all__ = ["KEvidence", "SelectionResult"]
 
 
+@storable
 @dataclass(frozen=True, eq=False)
 class KEvidence:
     """The evidence for one number of sources K and how it was obtained.
@@ -82,6 +85,7 @@ class KEvidence:
                 f"method={self.method!r}, trusted={self.trusted})")
 
 
+@storable
 @dataclass(frozen=True, eq=False)
 class SelectionResult:
     """Posterior over the number of sources K = 0..K_max.
@@ -175,15 +179,11 @@ class SelectionResult:
         recorded with the package version and the command line.
         """
         from .._provenance import provenance
-        from .._store import save_result
-
         return save_result(self, path, provenance(seed=seed, data=data))
 
     @classmethod
     def load(cls, path: str | os.PathLike, *, model: Any = None) -> SelectionResult:
         """Read a result written by :meth:`save` (``model``: see :meth:`MLResult.load`)."""
-        from .._store import load_result
-
         return load_result(path, cls, model=model)
 
     def __repr__(self) -> str:

@@ -6,7 +6,7 @@ of chunks in flight and checkpoints each one as soon as it finishes.  Dask
 (``distributed``) is an optional extra, imported only when it is used.
 
 The local process pool starts fast: its workers fork from a server process that
-has imported the package once (:mod:`._preload`), and until the first worker
+has imported the package once (:mod:`olsbayes._forkserver`), and until the first worker
 has delivered a chunk the study's own process runs queued chunks itself, so a
 small study never waits for the pool.  A chunk gives the same numbers wherever
 it runs (its trials' seeds are fixed).
@@ -118,7 +118,7 @@ class _LocalPool:
 
     def __init__(self, n_workers: int):
         ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["__main__", f"{__package__}._preload"])
+        ctx.set_forkserver_preload(["__main__", "olsbayes._forkserver"])
         self.pool = cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
                                            initializer=_end_with, initargs=(os.getpid(),))
         self.ready = threading.Event()
