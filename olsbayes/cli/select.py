@@ -4,7 +4,8 @@ Readings come from --data FILE, else from the config's [data] section (a file or
 a simulation of [scene]).  Options come from the command line, else from an
 optional [select] section (k_max, method, i_max, maxcall, tie).  Prints, per
 reading row, a table of K, log Z, its error, the estimator and p(K | data), the
-K sent to nested sampling and why.
+K sent to nested sampling and why.  The ML points in the JSON (``params``) give
+angles in the [scene] angle_unit.
 
 Example:
   olsbayes select                              # the built-in Fig. 3 scene
@@ -77,6 +78,16 @@ def _options(args: argparse.Namespace, cfg: Any) -> dict[str, Any]:
     return opts
 
 
+def _in_unit(model: Any, result: dict[str, Any], unit: str) -> dict[str, Any]:
+    """A selection's JSON with the angles of every candidate's ML point in ``unit``."""
+    from .fit import in_unit
+
+    for cand in result["candidates"]:
+        if cand["params"] and cand.get("names"):
+            cand["params"] = in_unit(model, cand["names"], cand["params"], unit).tolist()
+    return result
+
+
 def run(args: argparse.Namespace) -> int:
     """Print the evidence per K and p(K | data) for every row of readings.
 
@@ -99,8 +110,9 @@ def run(args: argparse.Namespace) -> int:
                              decision=DecisionOptions(tie=opts["tie"]))
     results = [select_k(model, row, opts["k_max"], i_max=opts["i_max"], method=opts["method"],
                         options=settings, rng=args.seed) for row in rows]
-    payload: dict[str, Any] = {"model": repr(model), "options": opts,
-                               "results": [r.to_dict() for r in results]}
+    unit = (cfg.get("scene") or {}).get("angle_unit", "rad")
+    payload: dict[str, Any] = {"model": repr(model), "options": opts, "angle_unit": unit,
+                               "results": [_in_unit(model, r.to_dict(), unit) for r in results]}
     if truth is not None:
         payload["true_k"] = truth.n_sources
     lines = [repr(model)]
