@@ -4,7 +4,8 @@ Readings come from --data FILE, else from the config's [data] section (a file or
 a simulation of [scene]).  Options come from the command line, else from an
 optional [select] section (k_max, method, i_max, maxcall, tie).  Prints, per
 reading row, a table of K, log Z, its error, the estimator and p(K | data), the
-K sent to nested sampling and why.  The ML points in the JSON (``params``) give
+K sent to nested sampling and why.  Long steps (importance and nested sampling)
+show a status line on stderr (--quiet: none).  The ML points in the JSON (``params``) give
 angles in the [scene] angle_unit.
 
 Example:
@@ -24,7 +25,15 @@ from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import Field, Section, read_readings, register_section
 from ..errors import InputError
 from ..select import METHODS, DecisionOptions, NestedOptions, SelectOptions, select_k
-from ._common import add_command, add_config_args, add_json_arg, add_seed_arg, emit, load_cli_config
+from ._common import (
+    add_command,
+    add_config_args,
+    add_json_arg,
+    add_quiet_arg,
+    add_seed_arg,
+    emit,
+    load_cli_config,
+)
 
 __all__ = ["register", "run"]
 
@@ -60,6 +69,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--maxcall", type=int, default=None, metavar="M",
                    help="likelihood-call cap per nested-sampling run (default 300000)")
     add_seed_arg(p, help="seed of the ML restarts, nested sampling and a [data] simulation")
+    add_quiet_arg(p)
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -109,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
     settings = SelectOptions(nested=NestedOptions(maxcall=opts["maxcall"]),
                              decision=DecisionOptions(tie=opts["tie"]))
     results = [select_k(model, row, opts["k_max"], i_max=opts["i_max"], method=opts["method"],
-                        options=settings, rng=args.seed) for row in rows]
+                        options=settings, rng=args.seed, progress=not args.quiet)
+               for row in rows]
     unit = (cfg.get("scene") or {}).get("angle_unit", "rad")
     payload: dict[str, Any] = {"model": repr(model), "options": opts, "angle_unit": unit,
                                "results": [_in_unit(model, r.to_dict(), unit) for r in results]}

@@ -113,7 +113,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--out", type=Path, default=None, help="NetCDF result file")
     p.add_argument("--resume", action="store_true",
                    help="continue the study in the [study] checkpoint file")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.add_argument("--quiet", "--no-progress", dest="no_progress", action="store_true",
+                   help="hide the progress bar")
     add_json_arg(p)
     p.set_defaults(run=run)
 

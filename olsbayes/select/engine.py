@@ -8,6 +8,7 @@ import time
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,11 +19,12 @@ from .criteria import aic, bic
 from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
 from .mixture import mixture_log_evidence
-from .nested import nested_log_evidence
+from .nested import NestedCheckpoint, nested_log_evidence
 from .options import NestedOptions
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
-           "information_criterion", "scalar_log_likelihood"]
+           "information_criterion", "scalar_log_likelihood", "ScalarLogLikelihood",
+           "nested_key"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +44,7 @@ class KWork:
     fit: Any = None
     stats: Mapping[str, float] | None = None
     origin: str = ""
+    nested: Any = None
 
 
 def noise_work(model: Model, data: np.ndarray) -> KWork:
@@ -124,43 +127,72 @@ def laplace_work(model: Model, k: int, fitted: tuple, prior,
                  stats=stats, origin=origin)
 
 
-def scalar_log_likelihood(model: Model, data: np.ndarray):
+def scalar_log_likelihood(model: Model, data: np.ndarray) -> ScalarLogLikelihood:
     """A lean one-point log-likelihood for dynesty, equal to ``model.log_likelihood``.
 
     dynesty's slice samplers call the likelihood one point at a time, where the
     batched model's per-call overhead dominates.  Distant sources (ring, sphere)
-    get a direct kernel; near sources use the model.
+    get a direct kernel; near sources use the model.  The object pickles (a
+    checkpointed nested run stores it).
     """
-    data = np.array(data, dtype=float)
-    if model.kind == "position":
-        return lambda x: float(model.log_likelihood(x, data))
-    nt = np.ascontiguousarray(model.array.normals.T)
-    law = model.sensitivity.value
-    inv2s2 = 0.5 / model.sigma**2
-    const = -model.n_sensors * (math.log(model.sigma) + 0.5 * math.log(2.0 * math.pi))
-    w = model.n_loc + 1
-    ring = model.kind == "angle"
+    return ScalarLogLikelihood(model, data)
 
-    def log_like(x: np.ndarray) -> float:
-        b = x.reshape(-1, w)
-        if ring:
+
+class ScalarLogLikelihood:
+    """``f(x) -> log p(data | x)`` of one parameter vector x (:func:`scalar_log_likelihood`)."""
+
+    def __init__(self, model: Model, data: np.ndarray):
+        self.model = model
+        self.data = np.array(data, dtype=float)
+        if model.kind != "position":
+            self.nt = np.ascontiguousarray(model.array.normals.T)
+            self.inv2s2 = 0.5 / model.sigma**2
+            self.const = -model.n_sensors * (math.log(model.sigma)
+                                             + 0.5 * math.log(2.0 * math.pi))
+            self.w = model.n_loc + 1
+            self.ring = model.kind == "angle"
+
+    def __call__(self, x: np.ndarray) -> float:
+        """log-likelihood of x (P,)."""
+        model = self.model
+        if model.kind == "position":
+            return float(model.log_likelihood(x, self.data))
+        b = x.reshape(-1, self.w)
+        if self.ring:
             u = np.column_stack([np.cos(b[:, 0]), np.sin(b[:, 0])])
         else:
             cl = np.cos(b[:, 1])
             u = np.column_stack([cl * np.cos(b[:, 0]), cl * np.sin(b[:, 0]), np.sin(b[:, 1])])
-        r = data - b[:, -1] @ law(u @ nt)
-        return float(const - inv2s2 * (r @ r))
+        r = self.data - b[:, -1] @ model.sensitivity.value(u @ self.nt)
+        return float(self.const - self.inv2s2 * (r @ r))
 
-    return log_like
+
+def nested_key(model: Model, data: np.ndarray, prior, options: NestedOptions) -> str:
+    """SHA-256 naming a nested run's problem: readings, model, prior, live points."""
+    import hashlib
+
+    from .._provenance import data_sha256
+
+    text = repr([repr(model), data_sha256(data), repr(prior), options.n_live])
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: NestedOptions,
-                *, rng: np.random.Generator) -> KWork:
-    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
+                *, rng: np.random.Generator, progress: bool = False) -> KWork:
+    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept).
+
+    With ``options.checkpoint_dir`` the run is checkpointed to
+    ``nested-k<K>.pkl`` there (and continued from it).
+    """
     maxcall = options.maxcall
+    ckpt = None
+    if options.checkpoint_dir is not None:
+        ckpt = NestedCheckpoint(Path(options.checkpoint_dir) / f"nested-k{work.k}.pkl",
+                                nested_key(model, data, prior, options))
     out = nested_log_evidence(scalar_log_likelihood(model, data), prior.ppf, prior.n_params,
                               periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
-                              n_live=options.n_live, dlogz=options.dlogz)
+                              n_live=options.n_live, dlogz=options.dlogz, progress=progress,
+                              checkpoint=ckpt)
     lap = work.laplace
     if not work.reasons and np.isfinite(lap):
         gap = abs(out.log_evidence - lap)
@@ -173,7 +205,8 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
         f"nested sampling stopped at maxcall={maxcall}",)
     return dataclasses.replace(
         work, value=out.log_evidence, error=out.error, method="nested", reasons=reasons,
-        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds)
+        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds,
+        nested=out.run)
 
 
 def information_criterion(model: Model, k: int, fitted: tuple, method: str,

@@ -172,7 +172,7 @@ def _select(model: Model, data: np.ndarray, k: int, settings: dict, rng) -> int:
 
     k_max = min(k + 1, (model.n_sensors - 1) // 2)
     return int(select_k(model, data, k_max=k_max, method="laplace", rng=rng,
-                        i_max=_i_max(settings)).best)
+                        i_max=_i_max(settings), progress=False).best)
 
 
 def _timed_estimates(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,

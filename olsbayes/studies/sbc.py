@@ -116,7 +116,7 @@ def sbc_k(settings: dict, *, rng: np.random.Generator) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)
         res = select_k(model, data, k_max=k_max, method=str(settings.get("method", "laplace")),
-                       rng=rng, i_max=float(settings.get("i_max", 2.0)))
+                       rng=rng, i_max=float(settings.get("i_max", 2.0)), progress=False)
     p, ks = np.asarray(res.probabilities, float), np.asarray(res.ks)
     p_true = float(p[ks == k_true].sum())
     pit = float(p[ks < k_true].sum()) + rng.uniform() * p_true
