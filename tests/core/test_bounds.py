@@ -231,3 +231,29 @@ def test_closed_forms_reject_bad_input():
         crlb_eq3(30, 0.01, 0.0)
     with pytest.raises(InputError, match="separation"):
         crlb_eq4(30, 0.01, 1.0, np.nan)
+
+
+@pytest.mark.parametrize("n", [29, 30, 31, 32])
+def test_resolution_limits_of_two_equal_sources(n):
+    """What the README says: the Fisher matrix of two equal sources dtheta apart is
+    singular at every placement for dtheta < h/2 (odd N) or < h (even N), and regular at
+    every placement for dtheta > h (odd N) or > 2h (even N), h = 2 pi / N; Eq. 4's
+    threshold, half a spacing, is finite from h/2 on.  400 random placements each."""
+    model = Model(Ring(n), 0.01)
+    h = 2 * np.pi / n
+    rng = np.random.default_rng(n)
+    odd = n % 2 == 1
+
+    def singular_fraction(sep_h):
+        th = rng.uniform(-np.pi, np.pi, 400)
+        one = np.ones_like(th)
+        x = np.stack([th, one, th + sep_h * h, one], axis=1)
+        return bound_covariance(model.fisher(x))[2].any(axis=-1).mean()
+
+    below, above = (0.45, 1.02) if odd else (0.98, 2.02)
+    assert singular_fraction(below) == 1.0
+    assert singular_fraction(above) == 0.0
+    middle = singular_fraction(0.75 if odd else 1.5)
+    assert 0.3 < middle < 0.7  # in between it depends on the placement
+    assert np.isinf(crlb_eq4(n, 0.01, 1.0, 0.49 * h)[0])
+    assert np.isfinite(crlb_eq4(n, 0.01, 1.0, 0.51 * h)[0])
