@@ -318,6 +318,13 @@ def test_olss_scene_and_the_antipodal_rank_collapse():
 
     bm = olss_bitmap()
     assert bm.shape == (16, 19) and bm.sum() == 68
+    # the paper-like mask: 12-row letters, 73 bright pixels, the same columns
+    tall = olss_bitmap(letter_rows=12)
+    assert tall.shape == (16, 19) and tall.sum() == 73
+    assert np.count_nonzero(tall.any(axis=1)) == 12 and np.count_nonzero(bm.any(axis=1)) == 11
+    np.testing.assert_array_equal(tall.any(axis=0), bm.any(axis=0))
+    with pytest.raises(InputError, match="letter_rows must be 11 or 12"):
+        olss_bitmap(letter_rows=13)
     dirs = olss_directions("endpoints")
     assert dirs.shape == (304, 2)
     assert np.isclose(np.abs(dirs[:, 0]).max(), np.pi / 2)
