@@ -56,6 +56,7 @@ def run(script: Path) -> list[Path]:
 
 
 def main(argv: list[str]) -> int:
+    """Run the analyses named in ``argv`` (every one when empty); 0 on success."""
     GALLERY.mkdir(parents=True, exist_ok=True)
     for script in scripts(argv):
         for path in run(script):

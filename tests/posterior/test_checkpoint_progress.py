@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from olsbayes import InputError, Model, Ring
-from olsbayes.posterior import SamplerOptions, sample
-from olsbayes.posterior import _checkpoint
+from olsbayes.posterior import SamplerOptions, _checkpoint, sample
 from olsbayes.posterior._logpost import LogPosterior
 
 
