@@ -21,6 +21,7 @@ memory and reaches the disk every :data:`SAVE_EVERY` seconds.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import time
@@ -96,12 +97,14 @@ class ChainCheckpoint:
 
     @property
     def seed(self) -> int | None:
-        """The seed recorded in the file (None: no file yet)."""
-        return None if self._stored is None else int(self._stored["seed"])
+        """The seed recorded in the file (None: no file yet, or a run seeded by a Generator)."""
+        if self._stored is None or int(self._stored["seed"]) < 0:
+            return None
+        return int(self._stored["seed"])
 
     def check_seed(self, seed: int | None) -> None:
         """Refuse a file written with another seed than ``seed`` (None: any)."""
-        if self._stored is not None and seed is not None and seed != self.seed:
+        if self.seed is not None and seed is not None and seed != self.seed:
             raise InputError(f"checkpoint {str(self.path)!r} was written with seed "
                              f"{self.seed}, not {seed}: give rng={self.seed} (or None) to "
                              "resume it, or delete it")
@@ -131,13 +134,13 @@ class ChainCheckpoint:
         return n
 
     def seen(self, sampler, seed: int | None) -> None:
-        """Record the state after a step; write the file when :data:`SAVE_EVERY` has passed."""
+        """Record the state after a step; :meth:`write` when :data:`SAVE_EVERY` has passed."""
         self._state = (sampler.iteration, sampler.random_state,
                        np.array(sampler.backend.accepted))
         if time.monotonic() - self._saved_at >= SAVE_EVERY:
-            self.save(sampler, seed)
+            self.write(sampler, seed)
 
-    def save(self, sampler, seed: int | None) -> None:
+    def write(self, sampler, seed: int | None) -> None:
         """Write the steps up to the last one recorded by :meth:`seen` (atomically)."""
         if self._state is None:
             return
@@ -153,9 +156,10 @@ class ChainCheckpoint:
             "rs_has_gauss": np.array(has_gauss, dtype=np.int64),
             "rs_cached": np.array(cached, dtype=float),
         }
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
         with atomic_path(self.path) as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez(fh, **arrays)
+            tmp.write_bytes(buf.getvalue())
         self._saved_at = time.monotonic()
 
 

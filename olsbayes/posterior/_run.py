@@ -80,7 +80,7 @@ def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: Sample
                     return True
         finally:
             if checkpoint is not None:
-                checkpoint.save(sampler, seed)
+                checkpoint.write(sampler, seed)
     return False
 
 

@@ -138,7 +138,9 @@ def sample(
         when interrupted) and, when it exists, continues from: the same call
         again gives the draws an uninterrupted run would have given; its stopping
         settings may differ (a larger ``max_steps`` continues a run that hit its
-        limit).  Without ``rng`` the seed recorded in the file is used.  A file of
+        limit).  Without ``rng`` the seed recorded in the file is used (a run
+        seeded by a Generator records none: its resumed start may differ, the
+        stored chain is continued all the same).  A file of
         other readings, model, prior, walkers or moves is refused
         (:mod:`olsbayes.posterior._checkpoint`).
 
@@ -160,7 +162,7 @@ def sample(
     if checkpoint is not None:
         ckpt = ChainCheckpoint(checkpoint, problem_key(model, data, prior, n_walkers, options))
         ckpt.check_seed(None if rng is None else seed_of(rng))
-        if rng is None and ckpt.seed is not None and ckpt.seed >= 0:
+        if rng is None and ckpt.seed is not None:
             rng = ckpt.seed
     if rng is None:
         rng = draw_seed()
