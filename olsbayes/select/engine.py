@@ -187,7 +187,7 @@ def scalar_prior_transform(prior):
 
     def transform(u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
-        if u.shape != lo.shape or not (u.min() >= 0.0 and u.max() <= 1.0):
+        if u.shape != lo.shape or not all(0.0 <= v <= 1.0 for v in u.tolist()):
             return prior.ppf(u)
         out = lo + scale * u
         for p, idx in other:
