@@ -33,8 +33,8 @@ The defaults, and why:
 * ``scatter``: fixed configurations spread over the whole source space, refined
   by LM (:mod:`~olsbayes.ml.fast.scatter`) -- 300 from K = 5 on, where optima of
   nearly equal height differ in several sources at once and the grid search
-  alone missed the global one in a quarter to a half of well-separated ring
-  scenes; ``distinct_modes`` from K = 5 on too, for the same reason.
+  alone often stops in one that is not the global optimum; ``distinct_modes``
+  from K = 5 on too, for the same reason.
 """
 
 from __future__ import annotations
