@@ -29,7 +29,7 @@ call on all T data vectors, time divided by T), ``paper`` (the paper's method as
 paper ran it, :mod:`_paper_baseline`: pseudo-random starts each refined by BFGS, with
 the number of starts M99 that reaches the global optimum in 99 % of the data vectors
 of this setting -- measured first on ``--pilot`` data vectors with 40 starts each,
-against the exact ML), ``multistart`` (``fit_ml(method="multistart")``: 20
+against the exact ML and the fast fit), ``multistart`` (``fit_ml(method="multistart")``: 20
 pseudo-random starts + L-BFGS-B), both on the first T_ms data vectors, and ``exact``
 (``fit_ml(method="exact")``, one batched call: the global optimum, by enumerating the
 ring's linear cells).  The exact row is the reference for the global-optimum share,
@@ -42,7 +42,7 @@ whole-batch calls (batch, exact) run ``--batch-reps`` times (3) spread between t
 blocks (median); every method runs once on other data first (compiled code, tuple
 plans and the exact enumeration's tables are loaded before any timing).
 
-A fifth row per setting, ``oracle``, is an LM run started at the truth: a local
+A last row per setting, ``oracle``, is an LM run started at the truth: a local
 ML that cannot jump to another cell's optimum, untimed (it is not an estimator).
 Where the exact ML's efficiency falls short of the oracle's, the ML estimator
 itself jumps between optima, whatever finds them.
@@ -52,10 +52,11 @@ error), failure rate (some parameter off by more than 5 CRLB std), the share of
 fits reaching the best optimum any method (the exact one, or the oracle) found
 -- to within 1e-6 and 1e-3 in log-likelihood -- and the median time per fit, as
 CPU time of this process (``time.process_time``) and wall-clock time.  Then the
-speed ratios, and the ML estimator's targets judged on this run.  CPU time is the primary
-measure: the machine is shared, and wall-clock times include waiting for a core,
-which depends on other processes' load.  Run ``python
-benchmarks/ml_speed_accuracy.py`` (quick, a few minutes) or ``--full`` (T = T_ms
+speed ratios against the paper's method and against the 20-start variant, and the
+ML estimator's targets judged on this run.  CPU time is the primary measure: the
+machine is shared, and wall-clock times include waiting for a core, which depends
+on other processes' load.  Run ``python
+benchmarks/ml_speed_accuracy.py`` (quick: some 20 minutes) or ``--full`` (T = T_ms
 = 1000).  BLAS threads are pinned to 1 so that timings on a shared machine
 measure the algorithms, not thread contention.
 """
