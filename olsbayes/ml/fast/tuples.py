@@ -37,7 +37,8 @@ import numpy as np
 
 from ..atoms import NEIGHBOUR
 
-__all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "TuplePlan", "GRAM_SAMPLING_ENTRIES"]
+__all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "TuplePlan", "GRAM_SAMPLING_ENTRIES",
+           "GRAM_SAMPLING_ATOMS"]
 
 
 @functools.lru_cache(maxsize=256)
@@ -58,9 +59,11 @@ def coarse_size(m: int, n: int, k: int, budget: int) -> int:
     return lo if lo > k else 0
 
 
-#: Atom matrices with more entries (M N) than this run the farthest-point sampling
-#: on their Gram matrix: O(M) per step instead of O(M N).
+#: Atom matrices with more entries (M N) than this, of at most GRAM_SAMPLING_ATOMS
+#: atoms (an M x M Gram matrix of at most 32 MiB), run the farthest-point sampling on
+#: their Gram matrix: O(M) per step instead of O(M N).
 GRAM_SAMPLING_ENTRIES = 500_000
+GRAM_SAMPLING_ATOMS = 2048
 
 
 def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
@@ -189,8 +192,9 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type,
     The plans depend only on the atoms, K, ``n_sets`` and ``budget``, so repeated
     single fits with one model reuse them (an LRU cache of 16 entries keyed by a
     hash of the atoms, computed once per read-only atom array).  Atom matrices of
-    more than :data:`GRAM_SAMPLING_ENTRIES` entries pick their subsets on their Gram
-    matrix (``gram``, (M, M), computed here if not given).
+    more than :data:`GRAM_SAMPLING_ENTRIES` entries and at most
+    :data:`GRAM_SAMPLING_ATOMS` atoms pick their subsets on their Gram matrix
+    (``gram``, (M, M), computed here if not given).
     """
     size = coarse_size(g.shape[0], g.shape[1], k, budget)
     if size == 0 or n_sets == 0:
@@ -201,7 +205,7 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type,
         _CACHE.move_to_end(key)
         return _CACHE[key]
     subsets: list[np.ndarray] = []
-    if g.size > GRAM_SAMPLING_ENTRIES:
+    if g.size > GRAM_SAMPLING_ENTRIES and g.shape[0] <= GRAM_SAMPLING_ATOMS:
         gram = g @ g.T if gram is None or gram.shape[0] != g.shape[0] else gram
     else:
         gram = None
