@@ -151,8 +151,11 @@ def part_size(args, say) -> list[dict]:
             e_all, e_hi = exponent(ns, f), exponent(ns[hi], f[hi]) if hi.sum() > 1 else np.nan
             at = [r for r in sel if r["n"] == 1000]
             ratio = at[0]["numpy_ms"] / at[0]["fast_ms"] if at else np.nan
+            top = ns >= 5000  # past the step where the atoms outgrow the last-level cache
+            e_top = exponent(ns[top], f[top]) if top.sum() > 1 else np.nan
             say(f"  {kind:6s} K={k}: exponent {e_all:5.2f} | {exponent(ns, b):5.2f}, N>=1000 "
-                f"{e_hi:5.2f} | {exponent(ns[hi], b[hi]) if hi.sum() > 1 else np.nan:5.2f}: "
+                f"{e_hi:5.2f} | {exponent(ns[hi], b[hi]) if hi.sum() > 1 else np.nan:5.2f}, "
+                f"N>=5000 {e_top:5.2f}: "
                 f"{verdict(max(e_all, e_hi) <= 1.0)};  ratio at N=1000 {ratio:5.2f}: "
                 f"{verdict(ratio >= 3.0)}")
     return rows
