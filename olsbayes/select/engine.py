@@ -24,7 +24,7 @@ from .options import NestedOptions
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
            "information_criterion", "scalar_log_likelihood", "ScalarLogLikelihood",
-           "nested_key"]
+           "scalar_prior_transform", "ScalarPriorTransform", "nested_key"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,11 +158,15 @@ class ScalarLogLikelihood:
         if model.kind == "position":
             return float(model.log_likelihood(x, self.data))
         b = x.reshape(-1, self.w)
+        u = np.empty((b.shape[0], self.nt.shape[0]))
         if self.ring:
-            u = np.column_stack([np.cos(b[:, 0]), np.sin(b[:, 0])])
+            u[:, 0] = np.cos(b[:, 0])
+            u[:, 1] = np.sin(b[:, 0])
         else:
             cl = np.cos(b[:, 1])
-            u = np.column_stack([cl * np.cos(b[:, 0]), cl * np.sin(b[:, 0]), np.sin(b[:, 1])])
+            u[:, 0] = cl * np.cos(b[:, 0])
+            u[:, 1] = cl * np.sin(b[:, 0])
+            u[:, 2] = np.sin(b[:, 1])
         r = self.data - b[:, -1] @ model.sensitivity.value(u @ self.nt)
         return float(self.const - self.inv2s2 * (r @ r))
 
@@ -177,6 +181,53 @@ def nested_key(model: Model, data: np.ndarray, prior, options: NestedOptions) ->
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def scalar_prior_transform(prior) -> ScalarPriorTransform:
+    """A lean one-point prior transform for dynesty, equal to ``prior.ppf``.
+
+    For u (P,) in the unit cube: the uniform marginals (:class:`~olsbayes.priors.Uniform`,
+    :class:`~olsbayes.priors.CircularUniform`) as one affine map ``lo + scale * u``
+    (the same floating-point operations as their quantile functions), the other
+    coordinate roles by their own quantile functions.  u outside the cube, and a
+    prior with a noise parameter, go through ``prior.ppf``.  dynesty calls the
+    transform once per proposed point, where the per-role bookkeeping of
+    ``ScenePrior.ppf`` would cost more than the likelihood.  The object pickles
+    (a checkpointed nested run stores it).
+    """
+    return ScalarPriorTransform(prior)
+
+
+class ScalarPriorTransform:
+    """``u (P,) -> x (P,)``, the prior's quantile map (:func:`scalar_prior_transform`)."""
+
+    def __init__(self, prior):
+        from ..priors import CircularUniform, Uniform
+
+        self.prior = prior
+        w, k = prior.n_loc + 1, prior.n_sources
+        self.lo, self.scale = np.zeros(prior.n_params), np.ones(prior.n_params)
+        self.other = []  # (marginal, indices) of the coordinate roles with another law
+        for j, p in enumerate(prior.location + (prior.intensity,)):
+            idx = np.arange(k) * w + j
+            if type(p) is Uniform:
+                self.lo[idx], self.scale[idx] = p.lo, p.hi - p.lo
+            elif type(p) is CircularUniform:
+                self.lo[idx], self.scale[idx] = -np.pi, 2.0 * np.pi
+            else:
+                self.other.append((p, idx))
+        self.lean = prior.noise is None
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        """x = F^-1(u) for u (P,) in the unit cube."""
+        u = np.asarray(u, dtype=float)
+        if (not self.lean or u.shape != self.lo.shape
+                or not all(0.0 <= v <= 1.0 for v in u.tolist())):
+            return self.prior.ppf(u)
+        out = self.lo + self.scale * u
+        for p, idx in self.other:
+            out[idx] = p._ppf(u[idx])
+        return out
+
+
 def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: NestedOptions,
                 *, rng: np.random.Generator, progress: bool = False) -> KWork:
     """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept).
@@ -189,7 +240,8 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
     if options.checkpoint_dir is not None:
         ckpt = NestedCheckpoint(Path(options.checkpoint_dir) / f"nested-k{work.k}.pkl",
                                 nested_key(model, data, prior, options))
-    out = nested_log_evidence(scalar_log_likelihood(model, data), prior.ppf, prior.n_params,
+    out = nested_log_evidence(scalar_log_likelihood(model, data), scalar_prior_transform(prior),
+                              prior.n_params,
                               periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
                               n_live=options.n_live, dlogz=options.dlogz, progress=progress,
                               checkpoint=ckpt)
