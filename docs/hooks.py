@@ -15,6 +15,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 GALLERY = ROOT / "docs" / "gallery"
+#: Analyses that print tables but draw no figure (as in docs/make_gallery.py).
+NO_FIGURE = ("fig2_two_level_gibbs", "ml_global_check")
 
 
 def readme() -> str:
@@ -48,8 +50,11 @@ def gallery() -> str:
             GALLERY.glob(f"{script.stem}-*.png"))
         for fig in figures:
             parts.append(f"![{script.stem}](gallery/{fig.name})\n")
-        if not figures:
+        if not figures and script.stem in NO_FIGURE:
             parts.append("*(prints tables; no figure)*\n")
+        elif not figures:
+            parts.append(f"*(figure not in the gallery: `python docs/make_gallery.py "
+                         f"{script.stem}` draws it)*\n")
         parts.append("```text\n" + body.strip() + "\n```\n")
     return "\n".join(parts)
 

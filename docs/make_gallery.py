@@ -1,8 +1,10 @@
 """Refresh the gallery's figures: run the analyses (quick sizes) and keep their PNGs.
 
 Each script of ``analyses/`` runs with its default (quick) sizes into a temporary
-folder; its figures are copied to ``docs/gallery/<script>.png`` (or
-``<script>-<name>.png`` when it draws several).  The documentation build
+folder; its figures are stored in ``docs/gallery/<script>.png`` (or
+``<script>-<name>.png`` when it draws several) as 256-colour PNGs, small enough
+to keep in the repository: the analyses take minutes each, too long for a
+documentation build.  The documentation build
 (``docs/hooks.py``) then shows every script's summary, command and figures on the
 gallery page.  Slow: minutes per script; run it when an analysis changes::
 
@@ -12,7 +14,6 @@ gallery page.  Slow: minutes per script; run it when an analysis changes::
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -28,7 +29,7 @@ ARGS = {
     "fig2_imaging": ["--mode-only", "--sensors", "linspace"],
 }
 #: Analyses that print tables but draw no figure (the gallery shows their summary only).
-NO_FIGURE = ("fig2_two_level_gibbs", "ml_global_check")
+NO_FIGURE = ("fig2_two_level_gibbs", "ml_global_check")  # the same list in docs/hooks.py
 
 
 def scripts(names: list[str]) -> list[Path]:
@@ -36,6 +37,16 @@ def scripts(names: list[str]) -> list[Path]:
     every = sorted(p for p in (ROOT / "analyses").glob("*.py")
                    if not p.name.startswith("_") and p.stem not in NO_FIGURE)
     return [p for p in every if not names or p.stem in names]
+
+
+def shrink(source: Path, target: Path) -> None:
+    """Save a figure as a 256-colour PNG (median-cut palette, no dithering)."""
+    from PIL import Image
+
+    with Image.open(source) as image:
+        small = image.convert("RGB").quantize(
+            colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+        small.save(target, optimize=True)
 
 
 def run(script: Path) -> list[Path]:
@@ -50,7 +61,7 @@ def run(script: Path) -> list[Path]:
         for png in pngs:
             name = script.stem if len(pngs) == 1 else f"{script.stem}-{png.stem}"
             target = GALLERY / f"{name}.png"
-            shutil.copyfile(png, target)
+            shrink(png, target)
             out.append(target)
         return out
 
