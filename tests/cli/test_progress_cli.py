@@ -46,3 +46,19 @@ def test_image_api_progress_is_checked_and_off_means_silent(capsys):
     ob.image(model, data, dirs, options=ob.imaging.ImageOptions(n_samples=20), rng=1,
              progress=False)
     assert capsys.readouterr().err == ""
+
+
+def test_demo_prints_each_part_as_it_is_computed(capsys, monkeypatch):
+    """The ML and CRLB blocks are on stdout before the evidence is computed (a demo
+    whose selection step fails has already shown them), not buffered to the end."""
+    import olsbayes.select
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("stop after the ML part")
+
+    monkeypatch.setattr(olsbayes.select, "select_k", fail)
+    with pytest.raises(RuntimeError, match="stop after the ML part"):
+        main(["demo", "--no-figures", "--quiet"])
+    out = capsys.readouterr().out
+    assert "Maximum-likelihood estimate" in out and "CRLB" in out
+    assert "Evidence for K" not in out
