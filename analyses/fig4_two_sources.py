@@ -36,6 +36,7 @@ import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes.exchange import estimation_errors  # noqa: E402
@@ -177,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     seps = np.geomspace(0.25 * 2 * np.pi / N, np.pi / 2, a.points)
     seeds = np.random.SeedSequence(a.seed).spawn(len(seps))
-    rows = [measure(s, trials, np.random.default_rng(ss)) for s, ss in zip(seps, seeds)]
+    rows = [measure(s, trials, np.random.default_rng(ss))
+            for s, ss in tqdm(list(zip(seps, seeds)), desc="Fig. 4 separations",
+                              unit=" separation", leave=False)]
     print_table(rows)
     with open(a.out / "fig4_two_sources.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))

@@ -11,8 +11,9 @@ from ._validation import finite_array, integer, positive_float
 from .errors import InputError, KinkWarning, ResolutionWarning
 from .model import Model
 from .scene import Scene
+from .sensitivity import Sensitivity
 
-__all__ = ["CRLBResult", "crlb", "crlb_eq3", "crlb_eq4", "kink_sources"]
+__all__ = ["CRLBResult", "crlb", "crlb_eq3", "crlb_eq4", "kink_sources", "horizon_fisher"]
 
 #: Relative eigenvalue below which a Fisher matrix counts as singular (after
 #: :func:`equilibrate`, so the rule does not depend on the units of the readings).
@@ -134,14 +135,70 @@ def kink_sources(model: Model, params: np.ndarray, atol: float = 1e-9) -> np.nda
     return np.any(np.abs(model.cosines(params)) < atol, axis=-1)
 
 
+#: |cos| below which a sub-sensor counts as exactly on a source's horizon
+#: (:func:`kink_sources` and :func:`horizon_fisher`).
+HORIZON_ATOL = 1e-9
+
+
+class _OneSided(Sensitivity):
+    """A kinked law with every cosine within ``atol`` of the kink taken on it, from one side.
+
+    ``lit``: g'(0+) (the side where the sub-sensor sees the source); else g'(0) (the
+    dark side, as the law itself evaluates at c = 0).  Elsewhere the law unchanged.
+    """
+
+    kink = True
+
+    def __init__(self, law: Sensitivity, atol: float, lit: bool):
+        self.law, self.atol = law, atol
+        self.side = float(law.derivative(np.array([np.finfo(float).tiny if lit else 0.0]))[0])
+
+    def value(self, c: np.ndarray) -> np.ndarray:
+        """g(c), with c = 0 on the horizon."""
+        c = np.asarray(c, dtype=float)
+        return self.law.value(np.where(np.abs(c) < self.atol, 0.0, c))
+
+    def derivative(self, c: np.ndarray) -> np.ndarray:
+        """dg/dc, the one-sided value on the horizon."""
+        c = np.asarray(c, dtype=float)
+        return np.where(np.abs(c) < self.atol, self.side, self.law.derivative(c))
+
+
+def horizon_fisher(model: Model, params: np.ndarray, atol: float = HORIZON_ATOL) -> np.ndarray:
+    """Fisher information (P, P) of one parameter vector, with the horizon rule.
+
+    Where a sub-sensor lies on a source's horizon (``|cos| < atol``) a kinked law
+    (the clipped cosine) has no derivative, and the rounding of ``cos`` would
+    decide between the two one-sided ones.  The rule here: the Fisher information
+    is the mean of the two one-sided matrices, every such sub-sensor lit
+    (g'(0+) = 1) and every one dark (g'(0) = 0).  For one horizon sub-sensor this
+    is the midpoint of the limits of the Fisher information as the source moves
+    off the horizon to either side.  On a ring of even N a sub-sensor on a
+    source's horizon has its antipode on it too, and just off the horizon one of
+    the two is lit, so the rule gives the Fisher information of the neighbouring
+    placements and Eq. 3 holds exactly (with N = 8 and a source on a sub-sensor's
+    normal: all lit would give sd(theta) = sqrt(N / (N + 4)) times Eq. 3, all dark
+    sqrt(2) times).  Elsewhere it is ``model.fisher(params)``.
+    """
+    x = np.asarray(params, dtype=float)
+    if not np.any(kink_sources(model, x, atol)):
+        return model.fisher(x)
+    law = model.sensitivity
+    lit = model.with_sensitivity(_OneSided(law, atol, lit=True)).fisher(x)
+    dark = model.with_sensitivity(_OneSided(law, atol, lit=False)).fisher(x)
+    return 0.5 * (lit + dark)
+
+
 def crlb(model: Model, scene: Scene) -> CRLBResult:
     """Exact CRLB of ``scene`` from the Fisher information of Eq. 1.
 
     Warns :class:`~olsbayes.errors.ResolutionWarning` (and reports inf std) when
     the Fisher matrix is singular -- sources closer than the array resolves -- and
     :class:`~olsbayes.errors.KinkWarning` when a sub-sensor lies exactly 90 deg
-    from a source, where the clipped cosine is not differentiable and the bound
-    depends on the one-sided derivative used (here the dark-side one, 0).
+    from a source (``|cos| < 1e-9``), where the clipped cosine is not
+    differentiable: the Fisher information there is the mean of its two one-sided
+    values, the sub-sensor lit and dark (:func:`horizon_fisher`), whatever the
+    rounding of the cosine.
     """
     if not isinstance(model, Model):
         raise InputError(f"model must be an olsbayes Model; got {type(model).__name__}")
@@ -150,7 +207,7 @@ def crlb(model: Model, scene: Scene) -> CRLBResult:
     x = model.pack(scene)
     k = scene.n_sources
     with np.errstate(over="ignore", invalid="ignore"):
-        fisher = model.fisher(x)
+        fisher = horizon_fisher(model, x)
     if not np.all(np.isfinite(fisher)):
         ratio = float(np.max(scene.intensities)) / model.sigma
         raise InputError(
@@ -170,7 +227,8 @@ def crlb(model: Model, scene: Scene) -> CRLBResult:
     if np.any(kink_sources(model, x)):
         warnings.warn(
             "a sub-sensor lies exactly 90 deg from a source (the kink of costn): the "
-            "likelihood is not differentiable there and the CRLB is one-sided",
+            "likelihood is not differentiable there; the CRLB uses the mean of the Fisher "
+            "information with that sub-sensor lit and dark",
             KinkWarning,
             stacklevel=2,
         )
@@ -194,7 +252,8 @@ def crlb_eq3(n: int, sigma: float, intensity: float | np.ndarray) -> tuple[np.nd
     """Eq. 3: single-source CRLB on a ring of ``n`` sub-sensors.
 
     Returns ``(theta_std, intensity_std)`` = (2 sigma / (sqrt(n) I), 2 sigma / sqrt(n)).
-    Exact for even ``n`` when no sub-sensor sits on the source's horizon.
+    Exact for even ``n`` (with a sub-sensor on the source's horizon, under the
+    rule of :func:`horizon_fisher`).
     """
     n = integer("n", n, low=3)
     sigma = positive_float("sigma", sigma)

@@ -118,10 +118,8 @@ def scene_from_config(cfg: Config, model: Model | None = None) -> Scene:
             pos = pos.reshape(-1, 3) if pos.size == 0 else pos
             scene = Scene(positions=pos, intensities=sec["intensities"])
         else:
-            d = sec["directions"]
-            if sec.get("angle_unit", "rad") == "deg":
-                d = np.deg2rad(d)
-            scene = Scene(directions=d, intensities=sec["intensities"])
+            scene = Scene(directions=sec["directions"], intensities=sec["intensities"],
+                          unit=sec.get("angle_unit", "rad"))
         if model is not None:
             model.pack(scene)
     return scene

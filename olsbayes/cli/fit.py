@@ -10,7 +10,9 @@ the posterior sd is printed next to the CRLB, with chi^2/dof and the posterior
 predictive p-value; --report DIR also writes corner, trace and posterior
 predictive plots, summary tables, the NetCDF posterior and report.html into DIR.
 The posterior lists its sources as the ML table does (source k is the ML
-estimate's source k), in the text, the JSON and every report file.
+estimate's source k), in the text, the JSON and every report file.  While the
+sampler runs, a status line on stderr shows the steps taken, the autocorrelation
+time tau with the steps it asks for and the last R-hat (--quiet: none).
 
 Without --seed a seed is drawn, printed and recorded in the outputs (JSON,
 report), with the package version, the SHA-256 of the readings (and of --data)
@@ -42,6 +44,7 @@ from ._common import (
     add_command,
     add_config_args,
     add_json_arg,
+    add_quiet_arg,
     add_seed_arg,
     emit,
     format_table,
@@ -73,6 +76,7 @@ def register(subparsers: Any) -> None:
                         " implies --posterior")
     p.add_argument("--max-steps", type=int, default=20000, metavar="S",
                    help="step cap of the emcee run (default 20000)")
+    add_quiet_arg(p)
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -246,18 +250,20 @@ def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
 def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None, rng: Any,
                     max_steps: int = 20000, report: Path | None = None, *, ml: Any = None,
                     unit: str = "rad", metadata: dict[str, Any] | None = None,
-                    selection: Any = None) -> tuple[dict[str, Any], str]:
+                    selection: Any = None, progress: bool = True
+                    ) -> tuple[dict[str, Any], str]:
     """Sample the posterior (and write the report into ``report``): payload and text.
 
     ``ml`` (the MLResult printed above) is the walkers' start, so the posterior
     labels its sources as the ML table does; angles are printed in ``unit``.
-    ``selection`` (a SelectionResult) adds p(K | data) to the report.
+    ``selection`` (a SelectionResult) adds p(K | data) to the report.  ``progress``:
+    the sampler's status line on stderr.
     """
     from ..posterior import SamplerOptions, sample
 
     folder = None if report is None else output_dir(report, "--report")
     post = sample(model, data, k, start=ml, options=SamplerOptions(max_steps=max_steps),
-                  rng=rng, progress=False)
+                  rng=rng, progress=progress)
     check, mc = post.crlb_check(), post.model_check()
     names = list(post.names)
 
@@ -333,7 +339,7 @@ def run(args: argparse.Namespace) -> int:
         payload["posterior"], text = posterior_block(
             model, data, k, truth, post_rng, args.max_steps, args.report, ml=result,
             unit=unit, metadata={key: record[key] for key in ("data_file", "data_file_sha256")
-                                 if key in record})
+                                 if key in record}, progress=not args.quiet)
         blocks.append(text)
     emit(args, payload, "\n".join([head, *blocks]))
     return 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 
@@ -14,6 +15,7 @@ from ..errors import ConvergenceWarning, InputError, PriorBoundWarning
 from ..model import Model
 from ..priors import ScenePrior, default_priors
 from ._assemble import MAX_STORED_DRAWS, assemble
+from ._checkpoint import ChainCheckpoint, problem_key
 from ._logpost import LogPosterior, cut_shift
 from ._run import make_sampler, run_ensemble
 from ._start import check_start, initial_walkers
@@ -96,6 +98,7 @@ def sample(
     options: SamplerOptions | None = None,
     rng: np.random.Generator | int | None = None,
     progress: bool = True,
+    checkpoint: str | os.PathLike | None = None,
 ) -> PosteriorResult:
     """Sample the posterior of ``n_sources`` sources with an emcee ensemble.
 
@@ -127,7 +130,19 @@ def sample(
         The same rng gives identical chains.  None: a seed is drawn from the
         system's entropy and recorded (``result.seed``), so the run can be repeated.
     progress : bool
-        Show emcee's progress bar.
+        A status line on stderr while the run lasts (after a few seconds): the
+        steps taken, tau and the steps the stopping rule asks for, the last R-hat
+        against ``rhat_max``.
+    checkpoint : path, optional
+        An ``.npz`` file the run writes as it goes (every minute, at its end and
+        when interrupted) and, when it exists, continues from: the same call
+        again gives the draws an uninterrupted run would have given; its stopping
+        settings may differ (a larger ``max_steps`` continues a run that hit its
+        limit).  Without ``rng`` the seed recorded in the file is used (a run
+        seeded by a Generator records none: its resumed start may differ, the
+        stored chain is continued all the same).  A file of
+        other readings, model, prior, walkers or moves is refused
+        (:mod:`olsbayes.posterior._checkpoint`).
 
     Returns
     -------
@@ -143,6 +158,12 @@ def sample(
     start = check_start(model, prior, start, n_walkers)
     if not isinstance(progress, (bool, np.bool_)):
         raise InputError(f"progress must be True or False; got {progress!r}")
+    ckpt = None
+    if checkpoint is not None:
+        ckpt = ChainCheckpoint(checkpoint, problem_key(model, data, prior, n_walkers, options))
+        ckpt.check_seed(None if rng is None else seed_of(rng))
+        if rng is None and ckpt.seed is not None:
+            rng = ckpt.seed
     if rng is None:
         rng = draw_seed()
     seed = seed_of(rng)
@@ -155,7 +176,7 @@ def sample(
     z0 = _start_coordinates(logpost, walkers)
     sampler = make_sampler(logpost, n_walkers, options, gen_mc)
     t0 = time.perf_counter()
-    converged = run_ensemble(sampler, z0, logpost, options, bool(progress))
+    converged = run_ensemble(sampler, z0, logpost, options, bool(progress), ckpt, seed)
     elapsed = time.perf_counter() - t0
     fields = assemble(model, data, logpost, sampler, centre, options, gen_prior, record)
     max_tau = float(np.max(fields["tau"]))
