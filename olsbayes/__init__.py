@@ -26,6 +26,8 @@ from .geometry import Plate, Ring, SensorArray, Sphere
 from .imaging import ImageOptions, ImageResult, image
 from .ml import FastOptions, MLResult, MultistartOptions, fit_ml
 from .model import Model
+from .noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, NoiseModel, Poisson
+from .nuisance import Nuisance
 from .posterior import PosteriorResult, SamplerOptions, write_report
 from .posterior import sample as sample_posterior
 from .priors import ScenePrior, default_priors
@@ -50,6 +52,12 @@ __all__ = [
     # model
     "Scene",
     "Model",
+    "NoiseModel",
+    "GaussianKnown",
+    "GaussianUnknown",
+    "GaussianPerSensor",
+    "Poisson",
+    "Nuisance",
     "CRLBResult",
     "crlb",
     "crlb_eq3",
