@@ -29,7 +29,7 @@ import numpy as np
 
 from ._validation import as_rng, check_reading_range, finite_array, integer, real_array
 from .errors import InputError
-from .noise import GaussianKnown, GaussianUnknown, NoiseModel
+from .noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, NoiseModel, Poisson
 from .nuisance import Nuisance
 from .priors import LogUniform, Prior
 
@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["resolve", "extra_names", "n_extra", "extra_nominal", "extra_priors",
            "split_extra", "expected", "log_likelihood", "pointwise", "fisher", "full_fisher",
-           "full_jacobian", "simulate", "check_data", "is_plain"]
+           "full_jacobian", "simulate", "check_data", "is_plain", "surrogate"]
 
 _TRIVIAL = Nuisance()
 
@@ -244,3 +244,52 @@ def simulate(model: Model, scene: object, *, rng: object = None,
     f = None if n_frames is None else integer("n_frames", n_frames, low=1)
     mu = expected(model, model._as_params(scene), None)
     return model.noise.simulate(mu, gen, shape, f)
+
+
+# -- the Gaussian surrogate --------------------------------------------------------------
+#: Quantile of the (calibrated) readings that starts an inferred background.
+BACKGROUND_QUANTILE = 0.1
+
+
+def _summary(model: Model, s: np.ndarray, frames: bool) -> tuple[np.ndarray, float, int]:
+    """(mean reading (T, N) in rate units, surrogate sd of it, frames F)."""
+    n_f = s.shape[1] if frames else 1
+    noise = model.noise
+    if isinstance(noise, Poisson):
+        counts = s.sum(axis=1) if frames else s
+        e = noise.total_exposure(n_f)
+        sd = float(np.sqrt(max(float(np.mean(counts)), 1.0))) / e
+        return counts / e - noise.dark, sd, n_f
+    mean = s.mean(axis=1) if frames else s
+    if isinstance(noise, GaussianPerSensor):
+        return mean, float(np.sqrt(np.mean(noise.sigma**2))) / np.sqrt(n_f), n_f
+    return mean, noise.scale / np.sqrt(n_f), n_f
+
+
+def surrogate(model: Model, s: np.ndarray, frames: bool
+              ) -> tuple[Model, np.ndarray, np.ndarray, bool]:
+    """Gaussian known-sigma surrogate of a batch: (model, readings (T, N), eta0, exact).
+
+    ``eta0`` (T, Q_nuisance) starts the inferred nuisance terms; ``exact`` is True
+    when the surrogate's least squares is the model's own likelihood.
+    """
+    nu = model.nuisance
+    mean, sd, _ = _summary(model, s, frames)
+    eta0 = np.broadcast_to(nu.nominal(model.n_sensors), (s.shape[0], nu.n_free(
+        model.n_sensors))).copy()
+    g, o = np.asarray(nu.gains, float), np.asarray(nu.offsets, float)
+    y = (mean - o) / g
+    if nu.infer_background:
+        lo, hi = nu.background_prior.lower, nu.background_prior.upper
+        b0 = np.clip(np.quantile(y, BACKGROUND_QUANTILE, axis=-1), lo, hi)
+        eta0[:, 0] = b0
+        y = y - b0[:, None]
+    else:
+        y = y - nu.background
+    sigma = sd / float(np.sqrt(np.mean(g**2)))
+    scale = float(np.max(np.abs(y))) if y.size else 1.0
+    sigma = min(max(sigma, 1e-12 * max(scale, 1e-300)), 1e12 * max(scale, 1e-300))
+    gauss = type(model)(model.array, sigma, model.sensitivity)
+    exact = (isinstance(model.noise, (GaussianKnown, GaussianUnknown)) and g.ndim == 0
+             and nu.n_free(model.n_sensors) == 0)
+    return gauss, y, eta0, exact

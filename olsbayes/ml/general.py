@@ -29,15 +29,13 @@ from .. import measurement
 from .._validation import integer
 from ..bounds import bayesian_information, bound_covariance, marginal_information
 from ..errors import InputError
+from ..measurement import surrogate
 from ..model import Model
-from ..noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, Poisson
+from ..noise import GaussianKnown, GaussianUnknown
 from .irls import profile_sigma, refine_general
 from .result import MLResult
 
-__all__ = ["fit_general", "surrogate", "check_general_inputs"]
-
-#: Quantile of the (calibrated) readings that starts an inferred background.
-BACKGROUND_QUANTILE = 0.1
+__all__ = ["fit_general", "check_general_inputs"]
 
 
 def check_general_inputs(model: object, data: object, n_sources: object, frames: object
@@ -56,50 +54,6 @@ def check_general_inputs(model: object, data: object, n_sources: object, frames:
     k_max = max(model.n_sensors // (model.n_loc + 1), 1)
     k = integer("n_sources", n_sources, low=1, high=k_max)
     return (arr if arr.ndim == single + 1 else arr[None]), k, arr.ndim == single + 1
-
-
-def _summary(model: Model, s: np.ndarray, frames: bool) -> tuple[np.ndarray, float, int]:
-    """(mean reading (T, N) in rate units, surrogate sd of it, frames F)."""
-    n_f = s.shape[1] if frames else 1
-    noise = model.noise
-    if isinstance(noise, Poisson):
-        counts = s.sum(axis=1) if frames else s
-        e = noise.total_exposure(n_f)
-        sd = float(np.sqrt(max(float(np.mean(counts)), 1.0))) / e
-        return counts / e - noise.dark, sd, n_f
-    mean = s.mean(axis=1) if frames else s
-    if isinstance(noise, GaussianPerSensor):
-        return mean, float(np.sqrt(np.mean(noise.sigma**2))) / np.sqrt(n_f), n_f
-    return mean, noise.scale / np.sqrt(n_f), n_f
-
-
-def surrogate(model: Model, s: np.ndarray, frames: bool
-              ) -> tuple[Model, np.ndarray, np.ndarray, bool]:
-    """Gaussian known-sigma surrogate of a batch: (model, readings (T, N), eta0, exact).
-
-    ``eta0`` (T, Q_nuisance) starts the inferred nuisance terms; ``exact`` is True
-    when the surrogate's least squares is the model's own likelihood.
-    """
-    nu = model.nuisance
-    mean, sd, _ = _summary(model, s, frames)
-    eta0 = np.broadcast_to(nu.nominal(model.n_sensors), (s.shape[0], nu.n_free(
-        model.n_sensors))).copy()
-    g, o = np.asarray(nu.gains, float), np.asarray(nu.offsets, float)
-    y = (mean - o) / g
-    if nu.infer_background:
-        lo, hi = nu.background_prior.lower, nu.background_prior.upper
-        b0 = np.clip(np.quantile(y, BACKGROUND_QUANTILE, axis=-1), lo, hi)
-        eta0[:, 0] = b0
-        y = y - b0[:, None]
-    else:
-        y = y - nu.background
-    sigma = sd / float(np.sqrt(np.mean(g**2)))
-    scale = float(np.max(np.abs(y))) if y.size else 1.0
-    sigma = min(max(sigma, 1e-12 * max(scale, 1e-300)), 1e12 * max(scale, 1e-300))
-    gauss = Model(model.array, sigma, model.sensitivity)
-    exact = (isinstance(model.noise, (GaussianKnown, GaussianUnknown)) and g.ndim == 0
-             and nu.n_free(model.n_sensors) == 0)
-    return gauss, y, eta0, exact
 
 
 def _statistics(model: Model, x: np.ndarray, extra: np.ndarray, s: np.ndarray, frames: bool

@@ -8,7 +8,8 @@ module docstring for the K! bookkeeping), and :class:`PoissonCount` /
 """
 
 from .counts import CountPrior, PoissonCount, UniformCount
-from .scene import ScenePrior, data_intensity_bound, default_priors
+from .defaults import data_intensity_bound, default_priors
+from .scene import ScenePrior
 from .univariate import (
     CircularUniform,
     Exponential,
