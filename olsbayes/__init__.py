@@ -8,6 +8,7 @@ and Monte Carlo studies, all judged against the Cramér–Rao lower bound.
 
 from ._version import __version__
 from .bounds import CRLBResult, crlb, crlb_eq3, crlb_eq4
+from .calibration import Calibration, calibrate
 from .circular import wrap_angle
 from .errors import (
     ConfigError,
@@ -58,6 +59,8 @@ __all__ = [
     "GaussianPerSensor",
     "Poisson",
     "Nuisance",
+    "Calibration",
+    "calibrate",
     "CRLBResult",
     "crlb",
     "crlb_eq3",
