@@ -65,9 +65,12 @@ from .nested import NestedEvidence, nested_log_evidence
 from .options import DecisionOptions, LaplaceOptions, NestedOptions, SelectOptions
 from .result import KEvidence, SelectionResult
 from .select import METHODS, select_k
+from .structure import StructureSelection, select_structure
 
 __all__ = [
     "select_k",
+    "select_structure",
+    "StructureSelection",
     "SelectOptions",
     "LaplaceOptions",
     "NestedOptions",
