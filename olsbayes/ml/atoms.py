@@ -20,20 +20,29 @@ from ..geometry import lonlat_to_unit
 from ..model import Model
 
 __all__ = ["default_grid", "default_grid_size", "cached_default_grid", "check_grid",
-           "check_atom_memory", "atoms", "grid_step", "NEIGHBOUR"]
+           "check_atom_memory", "atoms", "grid_step", "NEIGHBOUR", "RING_ATOMS_MAX",
+           "SPHERE_ATOMS"]
 
 #: Normalised-atom correlation above which two atoms count as one basin (the
 #: neighbourhood of an atom in the searches of the fast fit).
 NEIGHBOUR = 0.95
 
+#: Largest default ring grid (angles), and the range of the default sphere grid
+#: (directions).  An atom's correlation with its neighbours depends on their angular
+#: distance, not on N, once the sub-sensors sample the cosine law finely, so a grid
+#: of fixed angular spacing keeps every source inside a refinement basin at any N;
+#: the caps keep the search's cost per fit linear in N.
+RING_ATOMS_MAX = 1024
+SPHERE_ATOMS = (1024, 2048)
+
 
 def _ring_grid(model: Model, density: float) -> np.ndarray:
-    m = int(max(128, np.ceil(density * model.n_sensors)))
+    m = int(min(max(128, np.ceil(density * model.n_sensors)), RING_ATOMS_MAX))
     return (wrap_angle(2 * np.pi * (np.arange(m) + 0.5) / m))[:, None]
 
 
 def _sphere_grid(model: Model, density: float) -> np.ndarray:
-    m = int(np.clip(np.ceil(density * model.n_sensors), 1024, 8192))
+    m = int(np.clip(np.ceil(density * model.n_sensors), *SPHERE_ATOMS))
     k = np.arange(m) + 0.5
     lat = np.arcsin(1.0 - 2.0 * k / m)
     lon = wrap_angle(np.pi * (1.0 + 5.0**0.5) * k)
@@ -59,11 +68,13 @@ def default_grid(model: Model, density: float | None = None) -> np.ndarray:
     """Default candidate locations, shape (M, d).
 
     ``density`` defaults to 4 (ring, sphere) or 8 (plate).
-    Ring: ``max(128, density * N)`` equally spaced angles.  Sphere: a Fibonacci
-    lattice of ``density * N`` directions (clipped to [1024, 8192]) over the whole
-    sphere.  Plate: an (x, y, z) grid over the plate's extent padded by half of it,
-    xy step ``8 * pitch / density``, 10 geometric z levels from pitch/2 to twice
-    the extent (override with ``grid=`` for other source volumes).
+    Ring: ``max(128, density * N)`` equally spaced angles, at most
+    :data:`RING_ATOMS_MAX` (1024: 0.35 deg apart).  Sphere: a Fibonacci lattice of
+    ``density * N`` directions over the whole sphere, clipped to
+    :data:`SPHERE_ATOMS` ([1024, 2048]: about 7 to 4.5 deg apart).  Plate: an
+    (x, y, z) grid over the plate's extent padded by half of it, xy step
+    ``8 * pitch / density``, 10 geometric z levels from pitch/2 to twice the extent
+    (override with ``grid=`` for other source volumes).
     """
     if density is None:
         density = 8.0 if model.kind == "position" else 4.0
@@ -85,9 +96,9 @@ def default_grid_size(model: Model) -> int:
     built, and cached, to count it).
     """
     if model.kind == "angle":
-        return int(max(128, np.ceil(4.0 * model.n_sensors)))
+        return int(min(max(128, np.ceil(4.0 * model.n_sensors)), RING_ATOMS_MAX))
     if model.kind == "lonlat":
-        return int(np.clip(np.ceil(4.0 * model.n_sensors), 1024, 8192))
+        return int(np.clip(np.ceil(4.0 * model.n_sensors), *SPHERE_ATOMS))
     return int(cached_default_grid(model).shape[0])
 
 

@@ -5,7 +5,10 @@ a Laplace value that is untrusted, or trusted but near the decision boundary of 
 comparison that is not decisive, or a neighbour of the most probable K without
 a Laplace value -- never a K above the most probable one whose ML fit gains less
 than ``min_gain`` nats (an extra source fitting noise), nor one whose likelihood
-maximum, an upper bound on its evidence, already loses decisively.
+maximum, an upper bound on its evidence, already loses decisively, nor the most
+probable K when it leads every other K by twice ``decisive`` nats on an
+importance-sampling value (an unbiased estimate of Z: by Markov's inequality its
+lead is still decisive with probability >= 1 - e^-decisive).
 
 p(K | data) is proportional to Z_K p(K), and the chosen K is the *smallest* within
 ``tie`` nats of the most probable: on this sensor an over-complete model is never
@@ -45,14 +48,39 @@ def _could_compete(work: KWork, log_pk: float, floor: float) -> bool:
     return bool(work.log_likelihood + log_pk >= floor)
 
 
+def _settled(works: list[KWork], score: np.ndarray, rivals: list[int], top: int,
+             decision: DecisionOptions) -> bool:
+    """Whether the most probable K's lead stands on its importance-sampling value.
+
+    The most probable K got its evidence from importance sampling (an unbiased,
+    non-negative estimate of Z) and leads every other K that is not only fitting
+    noise by at least twice ``decisive`` nats.  By Markov's inequality such an
+    estimate exceeds Z by a factor e^x with probability at most e^-x, so the true
+    lead is still decisive with probability at least 1 - e^-decisive (0.99 at the
+    default); the sampler's usual failure, missing posterior mass, errs low and
+    only widens the lead.  Nested sampling could then change that K's log Z but
+    not the choice of K; ``recheck_decisive`` sends it anyway.
+    """
+    if decision.recheck_decisive or works[top].method != "importance" or rivals != [top]:
+        return False
+    others = [score[k] for k in range(len(works))
+              if k != top and not _noise_only(works, k, top, decision.min_gain)]
+    lead = score[top] - max(others, default=-np.inf)
+    return bool(lead >= 2.0 * decision.decisive)
+
+
 def _doubtful(works: list[KWork], score: np.ndarray, rivals: list[int], top: int,
-              tie: float) -> list[tuple[int, str]]:
+              decision: DecisionOptions) -> list[tuple[int, str]]:
     """Rivals whose value is untrusted or near the decision boundary, and why.
 
     Near: trusted but within ``TRUSTED_MARGIN`` of the decision boundary
-    (log odds = +-tie) of a non-decisive comparison.
+    (log odds = +-tie) of a non-decisive comparison.  None when the lead is
+    settled (:func:`_settled`).
     """
     out: list[tuple[int, str]] = []
+    tie = decision.tie
+    if _settled(works, score, rivals, top, decision):
+        return out
     for k in rivals:
         w = works[k]
         if k == 0 or w.method == "nested":
@@ -92,7 +120,7 @@ def next_escalation(works: list[KWork], log_pk: np.ndarray, decision: DecisionOp
     floor = score[top] - decision.decisive
     competing = [int(k) for k in order if finite[k] and score[k] >= floor]
     rivals = [k for k in competing if not _noise_only(works, k, top, decision.min_gain)]
-    candidates = _doubtful(works, score, rivals, top, decision.tie)
+    candidates = _doubtful(works, score, rivals, top, decision)
     for k in (top - 1, top + 1):  # a neighbour whose Laplace value does not exist
         if (0 < k < len(works) and not finite[k] and works[k].method != "nested"
                 and not _noise_only(works, k, top, decision.min_gain)

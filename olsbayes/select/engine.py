@@ -22,7 +22,7 @@ from .nested import nested_log_evidence
 from .options import NestedOptions
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
-           "information_criterion", "scalar_log_likelihood"]
+           "information_criterion", "scalar_log_likelihood", "scalar_prior_transform"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,22 +143,66 @@ def scalar_log_likelihood(model: Model, data: np.ndarray):
 
     def log_like(x: np.ndarray) -> float:
         b = x.reshape(-1, w)
+        u = np.empty((b.shape[0], nt.shape[0]))
         if ring:
-            u = np.column_stack([np.cos(b[:, 0]), np.sin(b[:, 0])])
+            u[:, 0] = np.cos(b[:, 0])
+            u[:, 1] = np.sin(b[:, 0])
         else:
             cl = np.cos(b[:, 1])
-            u = np.column_stack([cl * np.cos(b[:, 0]), cl * np.sin(b[:, 0]), np.sin(b[:, 1])])
+            u[:, 0] = cl * np.cos(b[:, 0])
+            u[:, 1] = cl * np.sin(b[:, 0])
+            u[:, 2] = np.sin(b[:, 1])
         r = data - b[:, -1] @ law(u @ nt)
         return float(const - inv2s2 * (r @ r))
 
     return log_like
 
 
+def scalar_prior_transform(prior):
+    """A lean one-point prior transform for dynesty, equal to ``prior.ppf``.
+
+    For u (P,) in the unit cube: the uniform marginals (:class:`~olsbayes.priors.Uniform`,
+    :class:`~olsbayes.priors.CircularUniform`) as one affine map ``lo + scale * u``
+    (the same floating-point operations as their quantile functions), the other
+    coordinate roles by their own quantile functions.  u outside the cube, and a
+    prior with a noise parameter, go through ``prior.ppf``.  dynesty calls the
+    transform once per proposed point, where the per-role bookkeeping of
+    ``ScenePrior.ppf`` would cost more than the likelihood.
+    """
+    from ..priors import CircularUniform, Uniform
+
+    w, k = prior.n_loc + 1, prior.n_sources
+    lo, scale = np.zeros(prior.n_params), np.ones(prior.n_params)
+    other = []  # (marginal, indices) of the coordinate roles with another law
+    for j, p in enumerate(prior.location + (prior.intensity,)):
+        idx = np.arange(k) * w + j
+        if type(p) is Uniform:
+            lo[idx], scale[idx] = p.lo, p.hi - p.lo
+        elif type(p) is CircularUniform:
+            lo[idx], scale[idx] = -np.pi, 2.0 * np.pi
+        else:
+            other.append((p, idx))
+    if prior.noise is not None:
+        return prior.ppf
+
+    def transform(u: np.ndarray) -> np.ndarray:
+        u = np.asarray(u, dtype=float)
+        if u.shape != lo.shape or not all(0.0 <= v <= 1.0 for v in u.tolist()):
+            return prior.ppf(u)
+        out = lo + scale * u
+        for p, idx in other:
+            out[idx] = p._ppf(u[idx])
+        return out
+
+    return transform
+
+
 def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: NestedOptions,
                 *, rng: np.random.Generator) -> KWork:
     """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
     maxcall = options.maxcall
-    out = nested_log_evidence(scalar_log_likelihood(model, data), prior.ppf, prior.n_params,
+    out = nested_log_evidence(scalar_log_likelihood(model, data), scalar_prior_transform(prior),
+                              prior.n_params,
                               periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
                               n_live=options.n_live, dlogz=options.dlogz)
     lap = work.laplace

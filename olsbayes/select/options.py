@@ -101,12 +101,20 @@ class DecisionOptions:
         log-likelihood exceeds that K's by less than this (nats, >= 0): on K = 1
         truths (ring N = 30) the gain of a second source is below 3 nats in 95 %
         of noise draws.
+    recheck_decisive : bool
+        ``auto`` also sends the most probable K to nested sampling when it leads every
+        other K by twice ``decisive`` nats on an importance-sampling value (default
+        False: by Markov's inequality the lead then stays decisive with probability
+        >= 1 - e^-decisive, so nested sampling would change that K's log Z -- which
+        importance sampling can put a few nats low near the resolution limit -- but
+        not the choice of K).
     """
 
     decisive: float = math.log(100.0)
     tie: float = math.log(3.0)
     max_escalations: int = 2
     min_gain: float = 3.0
+    recheck_decisive: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "decisive", positive_float("decisive", self.decisive))
@@ -114,6 +122,9 @@ class DecisionOptions:
         object.__setattr__(self, "max_escalations",
                            integer("max_escalations", self.max_escalations, low=0))
         object.__setattr__(self, "min_gain", nonnegative_float("min_gain", self.min_gain))
+        if not isinstance(self.recheck_decisive, bool):
+            raise InputError("recheck_decisive must be True or False; "
+                             f"got {self.recheck_decisive!r}")
 
 
 @dataclass(frozen=True)

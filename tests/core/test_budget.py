@@ -53,9 +53,9 @@ CASES = [
      "importance_draws=1000000000"),
     ("nested maxcall 1e12", lambda: _select(nested={"maxcall": 10**12}), "maxcall"),
     ("nested n_live 1e9", lambda: _select(nested={"n_live": 10**9}), "n_live=1000000000"),
-    ("fast fit of 1e5 sensors", lambda: ob.fit_ml(ob.Model(ob.Ring(100_000), 0.01),
-                                                 np.zeros(100_000), 1),
-     "400000 candidate locations x 100000 sub-sensors"),
+    ("fast fit of 1e6 sensors", lambda: ob.fit_ml(ob.Model(ob.Ring(10**6), 0.01),
+                                                 np.zeros(10**6), 1),
+     "1024 candidate locations x 1000000 sub-sensors"),
     ("user grid of 3e7 points", lambda: ob.fit_ml(MODEL, DATA, 2, grid=np.broadcast_to(
         np.zeros((1, 1)), (3 * 10**7, 1))), "30000000 candidate locations"),
 ]

@@ -341,7 +341,8 @@ def test_options_must_belong_to_the_method(method, options, match):
     ("n_restarts", -1), ("n_restarts", 65), ("restart_scale", 0.0), ("max_iter", 0),
     ("n_coarse", 65), ("tuple_budget", 0), ("runners_up", -1), ("max_sweeps", 0),
     ("dedupe_tol", -1e-4), ("close_spacings", 0.0), ("weak_ratio", -0.5),
-    ("pursuit", "yes"), ("kink_cuts", 1), ("n_restarts", 2.5),
+    ("pursuit", "yes"), ("kink_cuts", 1), ("n_restarts", 2.5), ("scatter", -1),
+    ("scatter", 100_001),
 ])
 def test_fast_options_refuse_bad_values_before_any_work(field, value):
     with pytest.raises(InputError, match=field):
@@ -365,6 +366,9 @@ def test_fast_options_per_k_defaults_and_structural_refusals():
     s2 = FastOptions().resolve(sphere, 2)
     assert (s2.escalate, s2.kink_hops, s2.runners_up) == (False, False, 2)
     assert FastOptions(n_coarse=5).resolve(ring, 4).n_coarse == 5
+    assert (r3.scatter, r4.scatter) == (0, 0)
+    r5 = FastOptions().resolve(ob.Model(ob.Ring(64), 1e-2), 5)
+    assert (r5.scatter, r5.distinct_modes, r5.pursuit) == (300, True, True)
     with pytest.raises(InputError, match="escalate=True"):
         FastOptions(escalate=True).resolve(sphere, 2)
     with pytest.raises(InputError, match="kink_hops=True"):
@@ -464,3 +468,25 @@ def test_compiled_post_fit_checks_match_numpy():
     inten = x[:, 1::2]
     want = (sep.min(axis=(1, 2)) < 4 * h) | (inten.min(1) <= 0.05 * inten.max(1))
     np.testing.assert_array_equal(ck.close_or_weak(x, 4 * h, 0.05), want)
+
+
+def test_five_sources_reach_the_optimum_of_an_lm_run_from_the_truth():
+    """K = 5 on a 64-ring (scattered starts): every fit of well-separated scenes (>= 30 deg)
+    is at least as good as an LM run started at the truth, and, the starts being fixed,
+    a batch equals a loop of single fits."""
+    from olsbayes.ml.lm import refine_batch
+
+    model = ob.Model(ob.Ring(64), 1e-2)
+    rng = np.random.default_rng(11)
+    scenes = []
+    while len(scenes) < 4:
+        a = np.sort(rng.uniform(-np.pi, np.pi, 5))
+        if np.diff(np.r_[a, a[0] + 2 * np.pi]).min() >= np.radians(30):
+            scenes.append(np.column_stack([a, rng.uniform(0.5, 1.0, 5)]).ravel())
+    truth = model.canonical(np.array(scenes))
+    data = model.simulate(truth, rng=rng)
+    batch = fit_ml(model, data, 5, warn=False)
+    ref = refine_batch(model, data, truth)
+    assert np.all(batch.log_likelihood >= model.log_likelihood(ref.x, data) - 1e-6)
+    single = np.array([fit_ml(model, s, 5, warn=False).params for s in data])
+    np.testing.assert_array_equal(single, batch.params)

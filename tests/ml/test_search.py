@@ -219,3 +219,72 @@ def test_search_gram_route_equals_atom_route(monkeypatch):
     b = search.grid_search(g, data, 3, search_options(3))
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_allclose(a[2], b[2], rtol=1e-9)
+
+
+def test_gram_neighbour_lists_equal_the_unit_atom_lists():
+    """The basins from the Gram matrix (large atom sets) == those from the unit atoms'
+    dot products (the same correlations up to rounding, none of them at 0.95 exactly)."""
+    from olsbayes.ml._numba import search as sk
+    from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.fast.search import _gram_neighbours
+
+    for model in (ob.Model(ob.Ring(30), 1e-2), ob.Model(ob.Sphere.fibonacci(40), 1e-2)):
+        g = atoms(model, cached_default_grid(model))
+        gnorm2 = np.einsum("mn,mn->m", g, g)
+        unit = np.ascontiguousarray(g / np.sqrt(gnorm2)[:, None])
+        ptr_a, idx_a = sk.neighbours(unit)
+        ptr_b, idx_b = _gram_neighbours(g @ g.T, gnorm2)
+        np.testing.assert_array_equal(ptr_a, ptr_b)
+        np.testing.assert_array_equal(idx_a, idx_b)
+
+
+def test_gram_farthest_point_sampling_is_farthest_point_sampling():
+    """Coarse subsets picked on the Gram matrix (atom sets of more than
+    GRAM_SAMPLING_ENTRIES entries): each atom added is (to rounding) the live atom
+    farthest from those chosen before it, as the unit-atom sampling picks them."""
+    from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.fast.tuples import coarse_subsets
+
+    model = ob.Model(ob.Sphere.fibonacci(100), 1e-2)
+    g = atoms(model, cached_default_grid(model))
+    u = g / np.linalg.norm(g, axis=1)[:, None]
+    for sub in coarse_subsets(g, 40, 3, gram=g @ g.T):
+        assert len(set(sub)) == 40
+    # replay the greedy order of one subset: seed, then farthest points
+    (sub,) = coarse_subsets(g, 12, 1, gram=g @ g.T)
+    chosen = [0]
+    dist = np.linalg.norm(u - u[0], axis=1)
+    for _ in range(11):
+        far = dist.max()
+        nxt = [i for i in sub if i not in chosen and dist[i] >= far - 1e-9]
+        assert nxt, "an atom of the subset is not a farthest point"
+        chosen.append(nxt[0])
+        dist = np.minimum(dist, np.linalg.norm(u - u[nxt[0]], axis=1))
+    assert sorted(chosen) == list(sub)
+
+
+def test_coarse_size_is_the_largest_size_within_the_budget():
+    """coarse_size (bisection) == the largest size <= min(M, 2N) with C(size, K) <= budget."""
+    import itertools
+    from math import comb
+
+    from olsbayes.ml.fast.tuples import coarse_size
+
+    for m, n, k, budget in itertools.product([3, 10, 128, 1024, 2048], [2, 16, 30, 300],
+                                             range(2, 9), [1, 10, 3_000, 5_000, 10**6]):
+        size = min(m, 2 * n)
+        while size > k and comb(size, k) > budget:
+            size -= 1
+        assert coarse_size(m, n, k, budget) == (size if size > k else 0)
+
+
+def test_default_grids_are_capped_for_large_arrays():
+    """Rings: max(128, 4N) angles up to RING_ATOMS_MAX; spheres: 4N directions clipped to
+    SPHERE_ATOMS -- so the Fig. 2 sphere (N = 300) keeps its 1200 directions."""
+    from olsbayes.ml.atoms import RING_ATOMS_MAX, SPHERE_ATOMS, default_grid
+
+    ring = {n: default_grid(ob.Model(ob.Ring(n), 1e-2)).shape[0] for n in (16, 30, 256, 300, 5000)}
+    assert ring == {16: 128, 30: 128, 256: 1024, 300: RING_ATOMS_MAX, 5000: RING_ATOMS_MAX}
+    sphere = {n: default_grid(ob.Model(ob.Sphere.fibonacci(n), 1e-2)).shape[0]
+              for n in (20, 300, 5000)}
+    assert sphere == {20: SPHERE_ATOMS[0], 300: 1200, 5000: SPHERE_ATOMS[1]}

@@ -199,6 +199,7 @@ def test_bad_arguments_name_the_argument(kwargs, match):
         (DecisionOptions, {"tie": -1.0}, "tie"),
         (DecisionOptions, {"max_escalations": -1}, "max_escalations"),
         (DecisionOptions, {"min_gain": np.nan}, "min_gain"),
+        (DecisionOptions, {"recheck_decisive": 1}, "recheck_decisive"),
         (SelectOptions, {"nested": {"maxcall": 1000}}, "nested"),
         (SelectOptions, {"decision": LaplaceOptions()}, "decision"),
         (SelectOptions, {"ml_method": "newton"}, "ml_method"),
@@ -337,6 +338,46 @@ def test_auto_skips_a_k_without_laplace_value_whose_likelihood_maximum_loses():
     works[1] = _work(1, math.nan, 85.0, outside)  # log L_max within reach of log Z_2
     k, why = next_escalation(works, *args)
     assert k == 1 and why.startswith("Laplace undefined")
+
+
+def test_auto_leaves_a_decisive_lead_measured_by_importance_sampling():
+    """The most probable K has an importance-sampling value (untrusted Laplace) and leads
+    every other K by >= 2 decisive nats: by Markov's inequality the lead stays decisive
+    with probability >= 1 - e^-decisive, so it is not sent (unless recheck_decisive); a
+    lead between decisive and 2 decisive nats still is."""
+    import dataclasses
+
+    from olsbayes.select.decide import next_escalation
+
+    log_pk = np.full(3, -math.log(3))
+    close = ("sources 0 and 1 0.75 sensor spacings apart (< 2: near the resolution limit)",)
+    top = dataclasses.replace(_work(2, 77.0, 90.0, close), method="importance")
+    decisive = DecisionOptions().decisive
+    for lead, sent in ((2 * decisive + 0.1, False), (2 * decisive - 0.1, True)):
+        works = [_work(0, -5e4, -5e4), _work(1, 77.0 - lead, 70.0), top]
+        got = next_escalation(works, log_pk, DecisionOptions(), set())
+        assert (got is not None and got[0] == 2) == sent, (lead, got)
+        recheck = next_escalation(works, log_pk, DecisionOptions(recheck_decisive=True), set())
+        assert recheck is not None and recheck[0] == 2
+
+
+def test_lean_prior_transform_equals_the_prior_ppf():
+    """dynesty's transform (uniform marginals as one affine map) == ScenePrior.ppf bit for
+    bit on rings and spheres (the latitude by its own quantile function), NaN outside."""
+    from olsbayes import Sphere
+    from olsbayes.select.engine import scalar_prior_transform
+
+    for model in (MODEL, Model(Sphere.grid(8, 10), 1e-2)):
+        for k in (1, 3):
+            prior = default_priors(model, k, i_max=2.0)
+            lean = scalar_prior_transform(prior)
+            u = np.random.default_rng(k).random((500, prior.n_params))
+            u[0], u[1] = 0.0, 1.0
+            for v in u:
+                np.testing.assert_array_equal(lean(v), prior.ppf(v))
+            v = u[2].copy()
+            v[0] = 1.5
+            np.testing.assert_array_equal(lean(v), prior.ppf(v))
 
 
 def test_auto_does_not_escalate_a_hopeless_k_on_a_three_source_scene():

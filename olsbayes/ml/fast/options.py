@@ -30,6 +30,11 @@ The defaults, and why:
 * ``kink_hops``: one round of starts just past the nearest sub-sensor horizon of
   each source -- K >= 2 on planar arrays with a kinked law, whose likelihood has
   shallow minima in neighbouring smooth cells about one CRLB std apart.
+* ``scatter``: fixed configurations spread over the whole source space, refined
+  by LM (:mod:`~olsbayes.ml.fast.scatter`) -- 300 from K = 5 on, where optima of
+  nearly equal height differ in several sources at once and the grid search
+  alone often stops in one that is not the global optimum; ``distinct_modes``
+  from K = 5 on too, for the same reason.
 """
 
 from __future__ import annotations
@@ -84,6 +89,8 @@ class FastOptions:
     escalate : bool or None
         Refit close or lopsided fits by exact enumeration (rings with the clipped
         cosine, K <= 4).
+    scatter : int or None
+        Fixed spread-out configurations refined by LM after the search (0..100,000).
     close_spacings : float
         Escalated: fitted sources closer than this many sensor spacings (> 0).
     weak_ratio : float
@@ -105,6 +112,7 @@ class FastOptions:
     cell_stop: bool = True
     kink_hops: bool | None = None
     escalate: bool | None = None
+    scatter: int | None = None
     close_spacings: float = 4.0
     weak_ratio: float = 0.01
 
@@ -116,6 +124,7 @@ class FastOptions:
             "n_coarse": lambda v: integer("n_coarse", v, low=0, high=64),
             "tuple_budget": lambda v: integer("tuple_budget", v, low=1, high=10**8),
             "runners_up": lambda v: integer("runners_up", v, low=0, high=16),
+            "scatter": lambda v: integer("scatter", v, low=0, high=100_000),
             "max_sweeps": lambda v: integer("max_sweeps", v, low=1, high=1000),
             "dedupe_tol": lambda v: nonnegative_float("dedupe_tol", v),
             "close_spacings": lambda v: positive_float("close_spacings", v),
@@ -154,7 +163,7 @@ class FastOptions:
         if self.kink_hops and not (model.kind == "angle" and model.sensitivity.kink):
             raise InputError("kink_hops=True needs a planar array (angles) and a law with a "
                              f"kink; got {model.kind!r} sources and {model.sensitivity!r}")
-        distinct = (k == 3) if self.distinct_modes is None else self.distinct_modes
+        distinct = (k == 3 or k >= 5) if self.distinct_modes is None else self.distinct_modes
         escalate = (ring_cosine and k in (2, 3)) if self.escalate is None else self.escalate
         hops = (k >= 2 and model.kind == "angle" and model.sensitivity.kink
                 if self.kink_hops is None else self.kink_hops)
@@ -167,6 +176,7 @@ class FastOptions:
             "single_precision": k == 4,
             "kink_hops": hops,
             "escalate": escalate,
+            "scatter": 300 if k >= 5 else 0,
         }
         return dataclasses.replace(self, **{name: value for name, value in pick.items()
                                             if getattr(self, name) is None})

@@ -18,6 +18,8 @@ knobs and their per-K defaults are :class:`~olsbayes.ml.fast.options.FastOptions
 3. :func:`~olsbayes.ml.fast.refine.restart` -- deterministic perturbed restarts
    around that optimum (``n_restarts`` sign patterns of ``restart_scale`` grid
    steps), all refined in one more batched LM run.
+   Then (``scatter``, K >= 5) :func:`~olsbayes.ml.fast.scatter.scattered` -- fixed
+   configurations spread over the whole source space, refined in one more LM run.
 4. :func:`~olsbayes.ml.fast.refine.kink_hops` -- each source moved just past its
    nearest sub-sensor horizon, either way, into the neighbouring smooth cell of
    the likelihood (``kink_hops``: planar arrays with a kinked law, K >= 2).
@@ -50,6 +52,7 @@ from ..outcome import FitOutcome
 from .escalate import escalate
 from .options import FastOptions
 from .refine import kink_hops, kink_polish, refine_starts, restart
+from .scatter import scattered
 from .search import grid_search
 
 __all__ = ["fit_fast"]
@@ -70,6 +73,8 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
     found = out.alternatives
     if options.n_restarts:
         out = restart(model, data, out, options.restart_scale * grid_step(model, grid), options)
+    if options.scatter:
+        out = scattered(model, data, out, grid, options)
     if options.kink_hops:
         out = kink_hops(model, data, out, options)
     out = dataclasses.replace(kink_polish(model, data, out, options), alternatives=found)

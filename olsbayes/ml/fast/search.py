@@ -22,6 +22,7 @@ import weakref
 
 import numpy as np
 
+from ..atoms import NEIGHBOUR
 from .options import FastOptions
 from .tuples import TuplePlan, tuple_plans
 
@@ -51,29 +52,46 @@ def _memo(obj: object, make, readonly: bool = True) -> tuple:
     return out
 
 
-#: Largest M^2 N for which the atoms' basins (neighbour lists) are precomputed.
+#: Largest M^2 N for which the atoms' basins (neighbour lists) come from the unit
+#: atoms' dot products; larger atom sets take them from the Gram matrix when it exists.
 _NEIGHBOUR_WORK = 50_000_000
-#: Largest M for which the atoms' Gram matrix (M^2 doubles) serves the search's projections.
-_GRAM_ATOMS = 1024
+#: Largest M for which the atoms' Gram matrix (M^2 doubles) serves the search's
+#: projections: every default ring and sphere grid (:data:`~olsbayes.ml.atoms.SPHERE_ATOMS`).
+_GRAM_ATOMS = 2048
+
+
+def _gram_neighbours(gram: np.ndarray, gnorm2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CSR lists of the atoms within each atom's basin, from the Gram matrix, O(M^2).
+
+    The normalised correlations ``gram[a, b] / sqrt(gnorm2[a] gnorm2[b])`` against
+    :data:`~olsbayes.ml.atoms.NEIGHBOUR` (the unit atoms' dot products up to rounding).
+    """
+    inv = 1.0 / np.sqrt(np.maximum(gnorm2, 1e-300))
+    near = gram * inv[:, None] * inv[None, :] > NEIGHBOUR
+    indptr = np.concatenate([[0], np.cumsum(near.sum(axis=1))]).astype(np.int64)
+    return indptr, np.nonzero(near)[1].astype(np.int64)
 
 
 def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
     """Read-only views of the atoms and of the arrays derived from them.
 
     The atoms, their Gram matrix (empty when M > :data:`_GRAM_ATOMS`), squared norms,
-    the unit atoms and the CSR neighbour lists of the unit atoms (empty when
-    M^2 N > :data:`_NEIGHBOUR_WORK`).
+    the unit atoms and the CSR neighbour lists of the unit atoms: from their dot
+    products when M^2 N <= :data:`_NEIGHBOUR_WORK`, else from the Gram matrix
+    (:func:`_gram_neighbours`), else empty (the searches then scan every atom).
     """
     from .._numba import search as sk
 
     def make(a: np.ndarray) -> tuple[np.ndarray, ...]:
         gnorm2 = np.einsum("mn,mn->m", a, a)
         unit = _frozen_view(a / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None])
+        gram = a @ a.T if a.shape[0] <= _GRAM_ATOMS else np.zeros((0, 0))
         if a.shape[0] ** 2 * a.shape[1] <= _NEIGHBOUR_WORK:
             indptr, indices = sk.neighbours(unit)
+        elif gram.size:
+            indptr, indices = _gram_neighbours(gram, gnorm2)
         else:
             indptr, indices = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        gram = a @ a.T if a.shape[0] <= _GRAM_ATOMS else np.zeros((0, 0))
         return (_frozen_view(a), _frozen_view(gram), _frozen_view(gnorm2), unit,
                 _frozen_view(indptr, np.int64), _frozen_view(indices, np.int64))
 
@@ -128,7 +146,8 @@ def grid_search(g: np.ndarray, data: np.ndarray, k: int,
 
     gv, gram, gnorm2, unit, indptr, indices = _atom_views(g)
     dtype = np.float32 if options.single_precision else np.float64
-    plans = tuple_plans(g, k, options.n_coarse, options.tuple_budget, dtype) if k >= 2 else []
+    plans = (tuple_plans(g, k, options.n_coarse, options.tuple_budget, dtype, gram)
+             if k >= 2 else [])
     pursuit = options.pursuit or not plans
     n_alt, distinct = options.runners_up, options.distinct_modes
     t, first, n_p = data.shape[0], (1 + k * n_alt) * pursuit, len(plans)

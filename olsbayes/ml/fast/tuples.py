@@ -25,6 +25,7 @@ scan itself is compiled (:mod:`olsbayes.ml._numba.tuples`); this module plans it
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import weakref
@@ -36,18 +37,56 @@ import numpy as np
 
 from ..atoms import NEIGHBOUR
 
-__all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "TuplePlan"]
+__all__ = ["coarse_size", "coarse_subsets", "tuple_plans", "TuplePlan", "GRAM_SAMPLING_ENTRIES",
+           "GRAM_SAMPLING_ATOMS"]
 
 
+@functools.lru_cache(maxsize=256)
 def coarse_size(m: int, n: int, k: int, budget: int) -> int:
-    """Largest coarse size <= min(M, 2 N) with C(size, K) <= budget (0 if < K + 1)."""
-    size = min(m, 2 * n)
-    while size > k and comb(size, k) > budget:
-        size -= 1
-    return size if size > k else 0
+    """Largest coarse size <= min(M, 2 N) with C(size, K) <= budget (0 if < K + 1).
+
+    C(size, K) grows with size (size >= K), so the largest one is found by bisection.
+    """
+    lo, hi = k, min(m, 2 * n)  # C(lo, K) = 1 <= budget; the answer is in [lo, hi]
+    if hi <= k:
+        return 0
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if comb(mid, k) <= budget:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo if lo > k else 0
 
 
-def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1) -> list[np.ndarray]:
+#: Atom matrices with more entries (M N) than this, of at most GRAM_SAMPLING_ATOMS
+#: atoms (an M x M Gram matrix of at most 32 MiB), run the farthest-point sampling on
+#: their Gram matrix: O(M) per step instead of O(M N).
+GRAM_SAMPLING_ENTRIES = 500_000
+GRAM_SAMPLING_ATOMS = 2048
+
+
+def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
+    """``dist(i) -> (M_live,)``: distances of the live unit atoms to live atom i, and live.
+
+    From the unit atoms themselves, or (``gram`` given) from the normalised
+    correlations ``c``: ``|u_a - u_b| = sqrt(2 - 2 c_ab)``.
+    """
+    if gram is None:
+        norm = np.linalg.norm(g, axis=1)
+    else:
+        norm = np.sqrt(np.maximum(np.diag(gram), 0.0))
+    live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
+    if gram is None:
+        u = g[live] / norm[live, None]
+        return (lambda i: np.linalg.norm(u - u[i], axis=1)), live
+    inv = 1.0 / norm[live]
+    corr = gram[np.ix_(live, live)] * inv[:, None] * inv[None, :]
+    return (lambda i: np.sqrt(np.maximum(2.0 - 2.0 * corr[i], 0.0))), live
+
+
+def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1,
+                   gram: np.ndarray | None = None) -> list[np.ndarray]:
     """``n_sets`` subsets of ``size`` atoms, each spread evenly over the response manifold.
 
     Farthest-point sampling on the unit-normalised atoms (rows of g, shape
@@ -56,20 +95,20 @@ def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1) -> list[np.ndarray
     30-ring's 128-atom grid with 20 atoms per subset their gaps range from about
     11 to 25 deg, and 3 of 24 seeds give a subset another seed gave
     (:func:`tuple_plans` plans each once); regular shifted grids reached the
-    global optimum less often.  Atoms with zero response (sources no sub-sensor sees) are skipped.
+    global optimum less often.  Atoms with zero response (sources no sub-sensor sees) are
+    skipped.  With ``gram`` (M, M), the atoms' Gram matrix, the distances come from it
+    (equal up to rounding).
     """
-    norm = np.linalg.norm(g, axis=1)
-    live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
-    u = g[live] / norm[live, None]
+    distance, live = _unit_distances(g, gram)
     size = min(size, live.size)
     out = []
     for j in range(n_sets):
         chosen = [j * live.size // n_sets]
-        dist = np.linalg.norm(u - u[chosen[0]], axis=1)
+        dist = distance(chosen[0])
         for _ in range(size - 1):
             nxt = int(np.argmax(dist))
             chosen.append(nxt)
-            dist = np.minimum(dist, np.linalg.norm(u - u[nxt], axis=1))
+            dist = np.minimum(dist, distance(nxt))
         out.append(live[np.sort(chosen)])
     return out
 
@@ -139,7 +178,8 @@ def _digest(g: np.ndarray) -> str:
     return digest
 
 
-def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type) -> list:
+def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type,
+                gram: np.ndarray | None = None) -> list:
     """Tuple-search plans for ``n_sets`` coarse subsets of the atoms g (cached).
 
     ``dtype``: the float type the tuples are scored in (float64 anyway where the
@@ -151,7 +191,10 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type) ->
 
     The plans depend only on the atoms, K, ``n_sets`` and ``budget``, so repeated
     single fits with one model reuse them (an LRU cache of 16 entries keyed by a
-    hash of the atoms, computed once per read-only atom array).
+    hash of the atoms, computed once per read-only atom array).  Atom matrices of
+    more than :data:`GRAM_SAMPLING_ENTRIES` entries and at most
+    :data:`GRAM_SAMPLING_ATOMS` atoms pick their subsets on their Gram matrix
+    (``gram``, (M, M), computed here if not given).
     """
     size = coarse_size(g.shape[0], g.shape[1], k, budget)
     if size == 0 or n_sets == 0:
@@ -162,7 +205,11 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type) ->
         _CACHE.move_to_end(key)
         return _CACHE[key]
     subsets: list[np.ndarray] = []
-    for sub in coarse_subsets(g, size, n_sets):  # identical subsets give identical tuples
+    if g.size > GRAM_SAMPLING_ENTRIES and g.shape[0] <= GRAM_SAMPLING_ATOMS:
+        gram = g @ g.T if gram is None or gram.shape[0] != g.shape[0] else gram
+    else:
+        gram = None
+    for sub in coarse_subsets(g, size, n_sets, gram):  # identical subsets: identical tuples
         if not any(np.array_equal(sub, u) for u in subsets):
             subsets.append(sub)
     plans = [_plan(g, sub, k, dtype) for sub in subsets]

@@ -1,0 +1,282 @@
+"""Cost of the fast ML fit against the number of sub-sensors N and of sources K.
+
+Side by side in one run, CPU time of this process (``time.process_time``; BLAS
+pinned to one thread), fits of one data vector at a time:
+
+1. **Size.**  Rings and spheres (Fibonacci lattices) of N = 16 ... 10,000
+   sub-sensors, K = 1..4 well-separated sources (neighbours >= 30 deg apart,
+   I ~ U(0.5, 1), sigma = 0.01): the median time of ``fit_ml`` next to that of a
+   plain-numpy fitter (:mod:`_numpy_baseline`: the same grid of candidate
+   directions, K steps of orthogonal matching pursuit, damped Gauss-Newton), the
+   two alternating in blocks of data vectors so that both see the same machine
+   load.  Printed: the exponent of cost against N (least squares on log-log, over
+   the whole range and over N >= 1000), the ratio baseline / fit at N = 1000, the
+   first fit's one-off set-up on a new model (atoms, Gram matrix, tuple plans;
+   the baseline's atoms alike), and the share of data vectors on which each
+   reaches the best optimum found (its own, the other's, or an LM run from the
+   truth).
+2. **Grid.**  The default grids are capped (rings 1024 angles, spheres 2048
+   directions): optimum shares with the capped grid and with the former one
+   (``max(128, 4N)`` angles, ``4N`` directions up to 8192) on the same data, at
+   N = 300 and 1000 (ring; the exact ML among the references for K <= 3 at N = 300,
+   K <= 2 at N = 1000) and 1000, 3000 (sphere).
+3. **Many sources.**  K = 1..8 on a ring of 64 and on the Fig. 2 sphere (300):
+   the median time per fit, the exponent of cost against K, and the share of fits
+   reaching the best optimum of the fast fit, a long multistart (``--ms-starts``
+   pseudo-random starts + L-BFGS-B) and an LM run from the truth.
+
+Run ``python benchmarks/ml_scaling.py`` (quick: ~15 min) or ``--full``.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from _numpy_baseline import NumpyGridFitter  # noqa: E402
+
+import olsbayes as ob  # noqa: E402
+from olsbayes.geometry import lonlat_to_unit  # noqa: E402
+from olsbayes.ml import MultistartOptions, fit_ml  # noqa: E402
+from olsbayes.ml.atoms import cached_default_grid  # noqa: E402
+from olsbayes.ml.lm import refine_batch  # noqa: E402
+
+SIZES = (16, 32, 64, 128, 256, 512, 1000, 2000, 5000, 10000)
+#: Reached: within this many nats of the best log-likelihood found.
+REACH = 1e-6
+
+
+def make_model(kind: str, n: int, sigma: float = 1e-2) -> ob.Model:
+    return ob.Model(ob.Ring(n) if kind == "ring" else ob.Sphere.fibonacci(n), sigma)
+
+
+def scenes(kind: str, k: int, n: int, rng: np.random.Generator,
+           min_sep_deg: float = 30.0) -> np.ndarray:
+    """``n`` random scenes (n, P): neighbours >= min_sep_deg apart, I ~ U(0.5, 1)."""
+    out = []
+    while len(out) < n:
+        if kind == "ring":
+            a = rng.uniform(-np.pi, np.pi, k)
+            d = np.abs(np.angle(np.exp(1j * (a[:, None] - a[None, :]))))
+            loc = a[:, None]
+        else:
+            lon, lat = rng.uniform(-np.pi, np.pi, k), np.arcsin(rng.uniform(-1, 1, k))
+            u = lonlat_to_unit(lon, lat)
+            d = np.arccos(np.clip(u @ u.T, -1.0, 1.0))
+            loc = np.column_stack([lon, lat])
+        np.fill_diagonal(d, np.pi)
+        if d.min() >= np.radians(min_sep_deg):
+            out.append(np.column_stack([loc, rng.uniform(0.5, 1.0, k)]).ravel())
+    return np.array(out)
+
+
+def _best_ll(model, data, truth, *lls):
+    """Best log-likelihood per data vector of the given fits and an LM run from the truth."""
+    ref = refine_batch(model, data, truth)
+    return np.max([model.log_likelihood(ref.x, data), *lls], axis=0)
+
+
+def size_point(kind: str, n: int, k: int, trials: int, block: int, seed: int) -> dict:
+    """One (kind, N, K): interleaved single fits of fit_ml and of the numpy baseline."""
+    rng = np.random.default_rng([seed, n, k])
+    model = make_model(kind, n)
+    truth = scenes(kind, k, trials, rng)
+    data = model.simulate(truth, rng=rng)
+    c0 = time.process_time()
+    fit_ml(model, data[0], k, warn=False)
+    setup = time.process_time() - c0
+    c0 = time.process_time()
+    base = NumpyGridFitter(model.array.normals, cached_default_grid(model))
+    base_setup = time.process_time() - c0
+    cpu = {"fast": [], "numpy": []}
+    ll = {"fast": np.empty(trials), "numpy": np.empty(trials)}
+    for lo in range(0, trials, block):
+        for name in ("fast", "numpy"):
+            for i in range(lo, min(lo + block, trials)):
+                c0 = time.process_time()
+                if name == "fast":
+                    x = fit_ml(model, data[i], k, warn=False).params
+                else:
+                    x = base.fit(data[i], k)[0]
+                cpu[name].append(time.process_time() - c0)
+                ll[name][i] = model.log_likelihood(x, data[i])
+    best = _best_ll(model, data, model.canonical(truth), ll["fast"], ll["numpy"])
+    fast_ms, numpy_ms = 1e3 * np.median(cpu["fast"]), 1e3 * np.median(cpu["numpy"])
+    return {"kind": kind, "n": n, "k": k, "fast_ms": fast_ms, "numpy_ms": numpy_ms,
+            "setup_ms": 1e3 * setup - fast_ms, "numpy_setup_ms": 1e3 * base_setup,
+            "fast_reach": float(np.mean(best - ll["fast"] <= REACH)),
+            "numpy_reach": float(np.mean(best - ll["numpy"] <= REACH))}
+
+
+def exponent(x, y) -> float:
+    """Slope of log y against log x (least squares)."""
+    return float(np.polyfit(np.log(x), np.log(y), 1)[0])
+
+
+def verdict(ok: bool) -> str:
+    return "met" if ok else "NOT met"
+
+
+def part_size(args, say) -> list[dict]:
+    say("1. size: median CPU ms per single fit (fit_ml | numpy grid + pursuit + Gauss-Newton on "
+        "the same grid), one-off set-up of a new model, share reaching the best optimum")
+    rows = []
+    for kind in ("ring", "sphere"):
+        for k in (1, 2, 3, 4):
+            for n in args.sizes:
+                r = size_point(kind, n, k, args.trials, args.block, args.seed)
+                rows.append(r)
+                say(f"  {kind:6s} K={k} N={n:6d}  fit {r['fast_ms']:8.2f}  numpy "
+                    f"{r['numpy_ms']:8.2f}  ratio {r['numpy_ms'] / r['fast_ms']:5.2f}  "
+                    f"set-up {r['setup_ms']:8.1f} | "
+                    f"{r['numpy_setup_ms']:7.1f}  reach {r['fast_reach']:.2f} | "
+                    f"{r['numpy_reach']:.2f}")
+    say("\n  exponent of cost vs N (fit | numpy), whole range and N >= 1000; ratio numpy / fit "
+        "at N = 1000 (goals: exponent <= 1, ratio >= 3)")
+    for kind in ("ring", "sphere"):
+        for k in (1, 2, 3, 4):
+            sel = [r for r in rows if r["kind"] == kind and r["k"] == k]
+            ns = np.array([r["n"] for r in sel])
+            f, b = np.array([r["fast_ms"] for r in sel]), np.array([r["numpy_ms"] for r in sel])
+            hi = ns >= 1000
+            e_all, e_hi = exponent(ns, f), exponent(ns[hi], f[hi]) if hi.sum() > 1 else np.nan
+            at = [r for r in sel if r["n"] == 1000]
+            ratio = at[0]["numpy_ms"] / at[0]["fast_ms"] if at else np.nan
+            top = ns >= 5000  # past the step where the atoms outgrow the last-level cache
+            e_top = exponent(ns[top], f[top]) if top.sum() > 1 else np.nan
+            say(f"  {kind:6s} K={k}: exponent {e_all:5.2f} | {exponent(ns, b):5.2f}, N>=1000 "
+                f"{e_hi:5.2f} | {exponent(ns[hi], b[hi]) if hi.sum() > 1 else np.nan:5.2f}, "
+                f"N>=5000 {e_top:5.2f}: "
+                f"{verdict(max(e_all, e_hi) <= 1.0)};  ratio at N=1000 {ratio:5.2f}: "
+                f"{verdict(ratio >= 3.0)}")
+    return rows
+
+
+def former_grid(model: ob.Model) -> np.ndarray:
+    """The default grid before the caps: max(128, 4N) angles, 4N directions in [1024, 8192]."""
+    n = model.n_sensors
+    if model.kind == "angle":
+        m = int(max(128, 4 * n))
+        return np.angle(np.exp(2j * np.pi * (np.arange(m) + 0.5) / m))[:, None]
+    m = int(np.clip(4 * n, 1024, 8192))
+    j = np.arange(m) + 0.5
+    lon = np.angle(np.exp(1j * np.pi * (1.0 + 5.0**0.5) * j))
+    return np.column_stack([lon, np.arcsin(1.0 - 2.0 * j / m)])
+
+
+def part_grid(args, say) -> list[dict]:
+    say("\n2. grid: share of fits reaching the best optimum, capped default grid | former grid "
+        "(same data; ring: the exact ML among the references where affordable)")
+    rows = []
+    for kind, ns in (("ring", (300, 1000)), ("sphere", (1000, 3000))):
+        for n in ns:
+            model = make_model(kind, n)
+            old = former_grid(model)
+            for k in (1, 2, 3, 4):
+                rng = np.random.default_rng([args.seed, 7, n, k])
+                truth = scenes(kind, k, args.grid_trials, rng)
+                data = model.simulate(truth, rng=rng)
+                new_ll = fit_ml(model, data, k, warn=False).log_likelihood
+                old_ll = fit_ml(model, data, k, grid=old, warn=False).log_likelihood
+                refs = [new_ll, old_ll]
+                if kind == "ring" and k <= (3 if n <= 300 else 2):  # exact: affordable K
+                    refs.append(fit_ml(model, data, k, method="exact", warn=False).log_likelihood)
+                best = _best_ll(model, data, model.canonical(truth), *refs)
+                r = {"kind": kind, "n": n, "k": k, "grid": old.shape[0],
+                     "capped": cached_default_grid(model).shape[0],
+                     "new_reach": float(np.mean(best - new_ll <= REACH)),
+                     "old_reach": float(np.mean(best - old_ll <= REACH))}
+                rows.append(r)
+                say(f"  {kind:6s} N={n:5d} K={k} ({r['capped']} | {r['grid']} atoms, "
+                    f"{args.grid_trials} fits): {r['new_reach']:.3f} | {r['old_reach']:.3f}")
+    return rows
+
+
+def part_many(args, say) -> list[dict]:
+    say(f"\n3. many sources: median CPU ms per single fit, share reaching the best of fast, "
+        f"multistart ({args.ms_starts} starts, first {args.ms_trials} scenes) and LM from the "
+        "truth (goal: >= 0.99 for K = 5..8)")
+    rows = []
+    cases = (("ring", ob.Model(ob.Ring(64), 1e-2), 20.0),
+             ("sphere", ob.Model(ob.Sphere.grid(15, 20), 1e-2), 30.0))
+    for kind, model, sep in cases:
+        for k in range(1, 9):
+            rng = np.random.default_rng([args.seed, 8, k])
+            truth = scenes(kind, k, args.many_trials, rng, sep)
+            data = model.simulate(truth, rng=rng)
+            fit_ml(model, data[0], k, warn=False)  # set-up of the model and plans
+            cpu, ll = [], np.empty(len(data))
+            for i, s in enumerate(data):
+                c0 = time.process_time()
+                ll[i] = fit_ml(model, s, k, warn=False).log_likelihood
+                cpu.append(time.process_time() - c0)
+            m = args.ms_trials
+            ms = fit_ml(model, data[:m], k, method="multistart", rng=k, warn=False,
+                        options=MultistartOptions(args.ms_starts)).log_likelihood
+            best = _best_ll(model, data, model.canonical(truth), ll)
+            best_ms = np.maximum(best[:m], ms)
+            r = {"kind": kind, "k": k, "ms": 1e3 * float(np.median(cpu)),
+                 "reach": float(np.mean(best - ll <= REACH)),
+                 "reach_vs_ms": float(np.mean(np.maximum(ll[:m], ms) - ll[:m] <= REACH)),
+                 "reach_all": float(np.mean(best_ms - ll[:m] <= REACH)),
+                 "ms_reach": float(np.mean(best_ms - ms <= REACH))}
+            rows.append(r)
+            say(f"  {kind:6s} N={model.n_sensors} K={k}: {r['ms']:8.2f} ms; reach vs LM from "
+                f"truth {r['reach']:.3f} ({len(data)}), vs multistart {r['reach_vs_ms']:.3f}, "
+                f"vs both {r['reach_all']:.3f} ({m}); multistart itself {r['ms_reach']:.3f}")
+        sel = [r for r in rows if r["kind"] == kind]
+        e = exponent([r["k"] for r in sel], [r["ms"] for r in sel])
+        worst = min(r["reach_all"] for r in sel if r["k"] >= 5)
+        say(f"  {kind}: cost ~ K^{e:.2f} over K = 1..8 (polynomial fit); worst share K = 5..8 "
+            f"{worst:.3f}: {verdict(worst >= 0.99)}")
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--full", action="store_true", help="more data vectors per point")
+    p.add_argument("--parts", default="123", help="which parts to run, e.g. 13")
+    p.add_argument("--seed", type=int, default=2025)
+    p.add_argument("--block", type=int, default=5, help="fits per block of the interleaving")
+    p.add_argument("--ms-starts", type=int, default=300, help="starts of the long multistart")
+    p.add_argument("--out", type=Path, default=Path("out/ml_scaling"))
+    a = p.parse_args(argv)
+    a.sizes = SIZES
+    a.trials, a.grid_trials = (60, 300) if a.full else (20, 100)
+    a.many_trials, a.ms_trials = (200, 40) if a.full else (50, 10)
+    a.out.mkdir(parents=True, exist_ok=True)
+    lines: list[str] = []
+
+    def say(s: str = "") -> None:
+        print(s, flush=True)
+        lines.append(s)
+
+    warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
+    for kind in ("ring", "sphere"):  # compiled code of every kind and K, before any timing
+        model = make_model(kind, 40)
+        for k in range(1, 9):
+            x = scenes(kind, k, 1, np.random.default_rng(k), 20.0)
+            fit_ml(model, model.simulate(x, rng=k), k, warn=False)
+    out = {}
+    if "1" in a.parts:
+        out["size"] = part_size(a, say)
+    if "2" in a.parts:
+        out["grid"] = part_grid(a, say)
+    if "3" in a.parts:
+        out["many"] = part_many(a, say)
+    (a.out / "ml_scaling.txt").write_text("\n".join(lines) + "\n")
+    (a.out / "ml_scaling.json").write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
