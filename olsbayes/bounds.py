@@ -203,6 +203,25 @@ def _extras(model: Model, x: np.ndarray, n_frames: int | None
     return marginal_information(full, p), fields
 
 
+def _warn_bound(model: Model, x: np.ndarray, k: int, singular: np.ndarray) -> None:
+    """Warn about unidentifiable parameters and sources on a sub-sensor's kink."""
+    if singular.any():
+        names = [n for n, s in zip(model.param_names(k), singular) if s]
+        warnings.warn(
+            f"Fisher matrix is singular: {', '.join(names)} cannot be identified "
+            "(sources closer than the array can resolve); their CRLB is inf",
+            ResolutionWarning,
+            stacklevel=3,
+        )
+    if np.any(kink_sources(model, x)):
+        warnings.warn(
+            "a sub-sensor lies exactly 90 deg from a source (the kink of costn): the "
+            "likelihood is not differentiable there and the CRLB is one-sided",
+            KinkWarning,
+            stacklevel=3,
+        )
+
+
 def crlb(model: Model, scene: Scene, *, n_frames: int | None = None) -> CRLBResult:
     """Exact CRLB of ``scene`` from the Fisher information of Eq. 1.
 
@@ -243,21 +262,7 @@ def crlb(model: Model, scene: Scene, *, n_frames: int | None = None) -> CRLBResu
             "close to a sub-sensor, have no representable bound): use readings, "
             "intensities and sigma in units where intensity / sigma is at most ~1e90")
     cov, cond, singular = bound_covariance(fisher)
-    if singular.any():
-        names = [n for n, s in zip(model.param_names(k), singular) if s]
-        warnings.warn(
-            f"Fisher matrix is singular: {', '.join(names)} cannot be identified "
-            "(sources closer than the array can resolve); their CRLB is inf",
-            ResolutionWarning,
-            stacklevel=2,
-        )
-    if np.any(kink_sources(model, x)):
-        warnings.warn(
-            "a sub-sensor lies exactly 90 deg from a source (the kink of costn): the "
-            "likelihood is not differentiable there and the CRLB is one-sided",
-            KinkWarning,
-            stacklevel=2,
-        )
+    _warn_bound(model, x, k, singular)
     std = np.sqrt(np.diag(cov)).reshape(k, model.n_loc + 1)
     loc_std = std[:, :-1]
     direction_std = None if model.kind == "position" else (

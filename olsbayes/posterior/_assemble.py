@@ -114,16 +114,8 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     crlb_cov = (_general.crlb_covariance(model, prior, estimate, n_frames) if general
                 else crlb_covariance(model, prior, estimate))
     acceptance = np.asarray(sampler.acceptance_fraction)
-    constants = {"normals": model.array.normals, "crlb_cov": crlb_cov, "estimate": estimate,
-                 "tau": tau, "acceptance_fraction": acceptance}
-    if centre is not None:
-        constants["start"] = centre
-    if model.array.positions is not None:
-        constants["positions"] = model.array.positions
-    if prior.noise is None and model.noise.is_default:
-        constants["sigma"] = np.array(model.sigma)
-    if n_frames is not None:
-        constants["n_frames"] = np.array(n_frames)
+    constants = _constants(model, prior, centre, n_frames, crlb_cov=crlb_cov,
+                           estimate=estimate, tau=tau, acceptance_fraction=acceptance)
     attrs = {"inference_library": "emcee", "inference_library_version": emcee.__version__,
              "olsbayes_version": __version__, "kind": model.kind,
              "n_sources": prior.n_sources, "n_burn": n_burn, "thin": thin, "n_steps": n_steps,
@@ -145,6 +137,21 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
                 start=centre, tau=tau, n_steps=n_steps, n_burn=n_burn, thin=thin,
                 acceptance_fraction=acceptance, switch_fraction=switch,
                 at_bound=at_prior_bound(x, prior) if options.use_likelihood else ())
+
+
+def _constants(model: Model, prior: ScenePrior, centre: np.ndarray | None,
+               n_frames: int | None, **arrays: np.ndarray) -> dict:
+    """The InferenceData's constant_data: ``arrays`` plus the array's and the noise's."""
+    constants = {"normals": model.array.normals, **arrays}
+    if centre is not None:
+        constants["start"] = centre
+    if model.array.positions is not None:
+        constants["positions"] = model.array.positions
+    if prior.noise is None and model.noise.is_default:
+        constants["sigma"] = np.array(model.sigma)
+    if n_frames is not None:
+        constants["n_frames"] = np.array(n_frames)
+    return constants
 
 
 def crlb_covariance(model: Model, prior: ScenePrior, x: np.ndarray) -> np.ndarray:

@@ -91,24 +91,7 @@ def default_priors(
         location = box if box is not None else _plate_box(model)
     else:
         location = None
-    if isinstance(intensity, Prior):
-        inten = intensity
-    else:
-        if i_max is None:
-            if data is None:
-                raise InputError("default_priors needs i_max (the largest intensity) or data")
-            loc = location if location is not None else ScenePrior(
-                model, 0, Uniform(0.0, 1.0)).location
-            i_max = _data_bound(model, data, loc, frames)
-        i_max = positive_float("i_max", i_max)
-        if intensity == "uniform":
-            inten = Uniform(0.0, i_max)
-        elif intensity == "loguniform":
-            inten = LogUniform(1e-3 * i_max, i_max)
-        else:
-            raise InputError(
-                f"intensity must be 'uniform', 'loguniform' or a Prior; got {intensity!r}"
-            )
+    inten = _intensity_prior(model, intensity, i_max, data, location, frames)
     noise = None
     if _has_extras(model):
         return ScenePrior(model, n_sources, inten, location=location,
@@ -120,6 +103,26 @@ def default_priors(
             raise InputError(f"sigma_range must be (lo, hi); got {sigma_range!r}")
         noise = LogUniform(float(bounds[0]), float(bounds[1]))
     return ScenePrior(model, n_sources, inten, location=location, noise=noise)
+
+
+def _intensity_prior(model, intensity, i_max, data, location, frames) -> Prior:
+    """The intensity prior of :func:`default_priors` (``intensity`` a name or a Prior)."""
+    if isinstance(intensity, Prior):
+        return intensity
+    if i_max is None:
+        if data is None:
+            raise InputError("default_priors needs i_max (the largest intensity) or data")
+        loc = location if location is not None else ScenePrior(
+            model, 0, Uniform(0.0, 1.0)).location
+        i_max = _data_bound(model, data, loc, frames)
+    i_max = positive_float("i_max", i_max)
+    if intensity == "uniform":
+        return Uniform(0.0, i_max)
+    if intensity == "loguniform":
+        return LogUniform(1e-3 * i_max, i_max)
+    raise InputError(
+        f"intensity must be 'uniform', 'loguniform' or a Prior; got {intensity!r}"
+    )
 
 
 def _has_extras(model) -> bool:
