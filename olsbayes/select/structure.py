@@ -13,6 +13,12 @@ Z_m p(m) with equal prior odds; the chosen candidate is the *first* (list the
 candidates from the simplest) within ``tie`` nats of the most probable: a term
 is added only when the data earn it.
 
+:func:`structure_candidates` builds the usual candidates from one model: every
+combination of an inferred background and inferred gains (each with its prior),
+optionally under a second noise model (e.g. Poisson counts besides a Gaussian of
+unknown sigma); :attr:`StructureSelection.supported` names the terms of the
+chosen one.
+
 Comparing a Gaussian density with a Poisson probability treats each count as a
 bin of unit width, which is accurate when the Gaussian is wide compared with one
 count (many counts per sub-sensor).
@@ -20,9 +26,10 @@ count (many counts per sub-sensor).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import logsumexp
@@ -30,10 +37,43 @@ from scipy.special import logsumexp
 from .._validation import as_rng, nonnegative_float, positive_float
 from ..errors import InputError
 from ..model import Model
+from ..noise import NoiseModel
+from ..nuisance import Nuisance
+from ..priors import Prior
 from .options import SelectOptions
 from .result import SelectionResult
 
-__all__ = ["StructureSelection", "select_structure"]
+__all__ = ["StructureOptions", "StructureSelection", "select_structure", "structure_candidates"]
+
+_METHODS = ("laplace", "auto", "nested")
+
+
+@dataclass(frozen=True)
+class StructureOptions:
+    """Settings of :func:`select_structure`.
+
+    Attributes
+    ----------
+    tie : float
+        Nats (>= 0) within which the first (simplest) candidate reaching the most
+        probable is chosen; default log 3 (odds below 3 : 1 do not add a term).
+    method : {"laplace", "auto", "nested"}
+        The evidence of every (candidate, K), as in :func:`~olsbayes.select.select_k`.
+    select : SelectOptions, optional
+        Options of every candidate's :func:`~olsbayes.select.select_k`.
+    """
+
+    tie: float = math.log(3.0)
+    method: str = "laplace"
+    select: SelectOptions | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tie", nonnegative_float("tie", self.tie))
+        if self.method not in _METHODS:
+            raise InputError(f"method must be one of {', '.join(_METHODS)}; got {self.method!r}")
+        if self.select is not None and not isinstance(self.select, SelectOptions):
+            raise InputError("select must be None or a SelectOptions; got "
+                             f"{type(self.select).__name__}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +103,15 @@ class StructureSelection:
     best_k: np.ndarray
     selections: tuple[SelectionResult, ...]
 
+    @property
+    def supported(self) -> tuple[str, ...]:
+        """The terms of the chosen candidate (its name split at ``+``; ``plain`` has none).
+
+        Names of :func:`structure_candidates` read ``[noise:]term+term`` or ``plain``.
+        """
+        name = self.best.split(":", 1)[-1]
+        return () if name == "plain" else tuple(name.split("+"))
+
     def table(self) -> str:
         """A text table: candidate, log Z, p(m | data), its K; the chosen one starred."""
         w = max(len(n) for n in self.names) + 1
@@ -77,34 +126,10 @@ class StructureSelection:
         return f"StructureSelection(best={self.best!r}, p=({probs}))"
 
 
-def select_structure(models: Mapping[str, Model], data: np.ndarray, k_max: int = 2, *,
-                     i_max: float | None = None, method: str = "laplace",
-                     options: SelectOptions | None = None, tie: float = math.log(3.0),
-                     rng: np.random.Generator | int | None = None,
-                     frames: bool = False) -> StructureSelection:
-    """Compare candidate models of one array by their evidence (module notes).
-
-    Parameters
-    ----------
-    models : mapping {name: Model}
-        At least two candidates of the same array, the simplest first.
-    data : ndarray (N,), or (F, N) with ``frames``
-    k_max : int
-        Largest number of sources of every candidate.
-    i_max : float, optional
-        Upper end of the (shared) intensity prior; default derived from the data
-        under the first candidate.
-    method, options, rng, frames
-        As for :func:`~olsbayes.select.select_k` (one rng stream per candidate).
-    tie : float
-        Nats within which the first (simplest) candidate is preferred (>= 0).
-    """
-    from ..priors import default_priors
-    from .select import select_k
-
+def _check_models(models: object) -> tuple[str, ...]:
+    """Names of at least two Model candidates of one array, else InputError."""
     if not isinstance(models, Mapping) or len(models) < 2:
         raise InputError("models must be a mapping {name: Model} of at least two candidates")
-    names = tuple(str(n) for n in models)
     first = next(iter(models.values()))
     for name, m in models.items():
         if not isinstance(m, Model):
@@ -113,18 +138,122 @@ def select_structure(models: Mapping[str, Model], data: np.ndarray, k_max: int =
         if m.array.n_sensors != first.array.n_sensors or not np.array_equal(
                 m.array.normals, first.array.normals):
             raise InputError(f"models[{name!r}] is for another array than the first candidate")
-    tie = nonnegative_float("tie", tie)
+    return tuple(str(n) for n in models)
+
+
+def select_structure(models: Mapping[str, Model], data: np.ndarray, k_max: int = 2, *,
+                     i_max: float | None = None, options: StructureOptions | None = None,
+                     rng: np.random.Generator | int | None = None,
+                     frames: bool = False) -> StructureSelection:
+    """Compare candidate models of one array by their evidence (module notes).
+
+    Every argument is checked before the first fit.
+
+    Parameters
+    ----------
+    models : mapping {name: Model}
+        At least two candidates of the same array, the simplest first (e.g. from
+        :func:`structure_candidates`).
+    data : ndarray (N,), or (F, N) with ``frames``
+        Readings (every candidate's noise model must accept them).
+    k_max : int
+        Largest number of sources of every candidate.
+    i_max : float, optional
+        Upper end of the (shared) intensity prior Uniform(0, i_max); default derived
+        from the data under the first candidate.
+    options : StructureOptions, optional
+        Tie margin, evidence method and the options of every ``select_k``.
+    rng : Generator or int, optional
+        One independent stream per candidate is spawned from it.
+    frames : bool
+        ``data`` holds F frames of one static scene.
+
+    Returns
+    -------
+    StructureSelection
+    """
+    from ..priors import default_priors
+    from .select import select_k
+
+    names = _check_models(models)
+    opts = StructureOptions() if options is None else options
+    if not isinstance(opts, StructureOptions):
+        raise InputError(f"options must be a StructureOptions; got {type(opts).__name__}")
+    for name, m in models.items():
+        m.check_data(data, name=f"data (under candidate {name!r})", frames=bool(frames))
     if i_max is None:
+        first = next(iter(models.values()))
         i_max = default_priors(first, 1, data=data, frames=frames).intensity.upper
     i_max = positive_float("i_max", i_max)
     streams = as_rng(rng).spawn(len(names))
-    sel = tuple(select_k(m, data, k_max, i_max=i_max, method=method, options=options,
-                         rng=g, frames=frames) for m, g in zip(models.values(), streams))
+    sel = tuple(select_k(m, data, k_max, i_max=i_max, method=opts.method,
+                         options=opts.select, rng=g, frames=frames)
+                for m, g in zip(models.values(), streams))
     log_z = np.array([float(logsumexp(s.log_evidence + s.log_prior_k)) for s in sel])
     prob = np.exp(log_z - log_z.max())
     prob /= prob.sum()
     top = float(log_z.max())
-    best = next(n for n, lz in zip(names, log_z) if lz >= top - tie)
+    best = next(n for n, lz in zip(names, log_z) if lz >= top - opts.tie)
     return StructureSelection(names=names, log_evidence=log_z, probabilities=prob,
                               best=best, best_k=np.array([s.best for s in sel]),
                               selections=sel)
+
+
+def _term_models(model: Model, background: Prior | None, gains: Prior | None
+                 ) -> dict[str, Model]:
+    """``plain`` and every combination of the given terms, fewest terms first."""
+    terms = [(n, p) for n, p in (("background", background), ("gains", gains)) if p is not None]
+    out = {"plain": model}
+    for size in range(1, len(terms) + 1):
+        for combo in itertools.combinations(terms, size):
+            kw = {("background_prior" if n == "background" else "gain_prior"): p
+                  for n, p in combo}
+            out["+".join(n for n, _ in combo)] = model.with_noise(
+                model.noise, replace(model.nuisance, **kw))
+    return out
+
+
+def structure_candidates(model: Model, *, background: Prior | None = None,
+                         gains: Prior | None = None,
+                         noise: NoiseModel | None = None) -> dict[str, Model]:
+    """Candidate structures of one array for :func:`select_structure`, simplest first.
+
+    Parameters
+    ----------
+    model : Model
+        The simplest candidate (``plain``): its noise and its nuisance as given.
+    background : Prior, optional
+        Prior of an inferred isotropic background (support within [0, inf)); adds
+        the candidates with a ``background`` term.
+    gains : Prior, optional
+        Prior of every sub-sensor's gain (support within (0, inf), e.g.
+        ``LogNormal(0, 0.1)``); adds the candidates with a ``gains`` term.
+    noise : NoiseModel, optional
+        A second noise model; every candidate is repeated under it, named
+        ``"<kind>:<name>"`` (the first ones then ``"<model's kind>:<name>"``).
+
+    Returns
+    -------
+    dict {name: Model}
+        ``plain``, ``background``, ``gains``, ``background+gains`` (those whose
+        terms were given), in that order; with ``noise`` twice as many.
+    """
+    if not isinstance(model, Model):
+        raise InputError(f"model must be an olsbayes.Model; got {type(model).__name__}")
+    if background is None and gains is None and noise is None:
+        raise InputError("structure_candidates needs at least one of background, gains "
+                         "or noise (otherwise there is only one candidate)")
+    for name, p in (("background", background), ("gains", gains)):
+        if p is not None and not isinstance(p, Prior):
+            raise InputError(f"{name} must be None or an olsbayes.priors prior; got "
+                             f"{type(p).__name__}")
+    if noise is not None and not isinstance(noise, NoiseModel):
+        raise InputError(f"noise must be None or an olsbayes.noise NoiseModel; got "
+                         f"{type(noise).__name__}")
+    Nuisance(background_prior=background, gain_prior=gains)  # checks the priors' supports
+    first = _term_models(model, background, gains)
+    if noise is None:
+        return first
+    second = _term_models(model.with_noise(noise), background, gains)
+    return {**{f"{model.noise.kind}:{n}": m for n, m in first.items()},
+            **{f"{noise.kind}:{n}": m for n, m in second.items()}}
