@@ -21,13 +21,17 @@ chosen one.
 
 Comparing a Gaussian density with a Poisson probability treats each count as a
 bin of unit width, which is accurate when the Gaussian is wide compared with one
-count (many counts per sub-sensor).
+count (many counts per sub-sensor).  When a Gaussian candidate is chosen over a
+Poisson one on low counts (median non-zero count per frame below
+:data:`LOW_COUNTS`) an :class:`~olsbayes.errors.EvidenceWarning` says that the
+Gaussian approximation of the counts is poor there.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
@@ -35,7 +39,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .._validation import as_rng, nonnegative_float, positive_float
-from ..errors import InputError
+from ..errors import EvidenceWarning, InputError
 from ..model import Model
 from ..noise import NoiseModel
 from ..nuisance import Nuisance
@@ -46,6 +50,8 @@ from .result import SelectionResult
 __all__ = ["StructureOptions", "StructureSelection", "select_structure", "structure_candidates"]
 
 _METHODS = ("laplace", "auto", "nested")
+#: Median non-zero count per frame below which a Gaussian model of counts is warned about.
+LOW_COUNTS = 20.0
 
 
 @dataclass(frozen=True)
@@ -194,9 +200,25 @@ def select_structure(models: Mapping[str, Model], data: np.ndarray, k_max: int =
     prob /= prob.sum()
     top = float(log_z.max())
     best = next(n for n, lz in zip(names, log_z) if lz >= top - opts.tie)
+    _warn_low_counts(models, best, data)
     return StructureSelection(names=names, log_evidence=log_z, probabilities=prob,
                               best=best, best_k=np.array([s.best for s in sel]),
                               selections=sel)
+
+
+def _warn_low_counts(models: Mapping[str, Model], best: str, data: np.ndarray) -> None:
+    """EvidenceWarning when a Gaussian model beats a Poisson candidate on low counts."""
+    if models[best].noise.kind == "poisson" or not any(
+            m.noise.kind == "poisson" for m in models.values()):
+        return
+    arr = np.asarray(data, float)
+    positive = arr[arr > 0]
+    median = float(np.median(positive)) if positive.size else 0.0
+    if median < LOW_COUNTS:
+        warnings.warn(f"the Gaussian candidate {best!r} was chosen over Poisson counts with a "
+                      f"median non-zero count of {median:.3g} per frame (< {LOW_COUNTS:g}): "
+                      "the Gaussian approximation of counts this low is poor",
+                      EvidenceWarning, stacklevel=3)
 
 
 def _term_models(model: Model, background: Prior | None, gains: Prior | None

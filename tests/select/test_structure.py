@@ -94,3 +94,13 @@ def test_poisson_is_preferred_for_low_counts():
 def test_bad_structure_input(call, match):
     with pytest.raises(ob.InputError, match=match):
         call()
+
+
+def test_a_gaussian_choice_on_low_counts_is_warned_about():
+    """Counts of ~1-5: the Gaussian candidate listed first wins a tie only with a warning."""
+    pois = ob.Model(RING, noise=Poisson(exposure=4.0, dark=0.5))
+    counts = pois.simulate(TRUTH, rng=8)
+    cands = {"gaussian": pois.with_noise(GaussianUnknown(1.0)), "poisson": pois}
+    opts = StructureOptions(tie=1e6)  # the first candidate is chosen whatever the evidence
+    with pytest.warns(ob.EvidenceWarning, match="Gaussian approximation"):
+        assert select_structure(cands, counts, 1, options=opts, rng=0).best == "gaussian"
