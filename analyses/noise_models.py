@@ -31,8 +31,7 @@ is dominated by such sub-sensors).  Four parts:
    when there is none, and when it is 5 times its marginal CRLB sd.
 
 Outputs in --out (default out/noise_models/): noise_models.png,
-noise_models.txt.  Quick mode (default) takes a few minutes on one core;
---full uses 5x the trials.
+noise_models.txt.  Quick mode by default; --full uses 5x the trials.
 
 Usage::
 
