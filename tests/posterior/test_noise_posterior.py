@@ -106,14 +106,14 @@ def test_background_and_gains_are_sampled():
     """Poisson counts with a background and gains known to 5 %: both sampled, no warnings."""
     from olsbayes.priors import LogNormal
 
-    n = 20
+    n = 12
     g = np.exp(0.05 * np.random.default_rng(1).standard_normal(n))
     nu = ob.Nuisance(gains=g, background=3.0, gain_prior=LogNormal(0.0, 0.05),
                      background_prior=Uniform(0.0, 30.0))
     model = ob.Model(ob.Ring(n), noise=Poisson(exposure=10.0, dark=1.0), nuisance=nu)
     counts = model.simulate(np.array([0.2, 30.0]), rng=10)
     post = ob.sample_posterior(model, counts, 1, rng=6, progress=False,
-                               options=SamplerOptions(n_steps=3000))
+                               options=SamplerOptions(n_steps=2000))
     assert post.names[2] == "b" and post.names[3] == "g[0]" and len(post.names) == 2 + 1 + n
     b = post.samples[..., 2].ravel()
     assert abs(b.mean() - 3.0) < 4 * b.std()
