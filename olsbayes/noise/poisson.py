@@ -26,6 +26,15 @@ class Poisson(NoiseModel):
         a vector gives one exposure per frame (data with frames of that length).
     dark : float or ndarray (N,)
         Known dark rate (>= 0) of every sub-sensor, in the units of ``mu``.
+
+    Notes
+    -----
+    The Fisher weight of a sub-sensor is ``exposure / (mu + dark)``.  With no dark
+    rate and no background, a sub-sensor just inside a source's horizon expects
+    almost no count yet carries a large weight, and one just past it expects none
+    at all: the bound of such a scene is dominated by these sub-sensors and ML
+    intervals built on it undercover.  A realistic dark rate (or background) keeps
+    every expected count positive.
     """
 
     exposure: float | np.ndarray = 1.0
