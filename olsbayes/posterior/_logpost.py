@@ -22,6 +22,7 @@ import numpy as np
 
 from ..circular import largest_gap_cut, wrap_angle
 from ..priors import LogUniform, ScenePrior
+from . import _general
 
 __all__ = ["LogPosterior", "cut_shift"]
 
@@ -60,12 +61,19 @@ class LogPosterior:
         log-uniform prior are ``z = log x`` instead (their shift must be 0).
     use_likelihood : bool
         False samples the prior (used to test the sampler).
+    frames : bool
+        ``data`` holds frames (F, N) of one scene.
+
+    Models with other noise, nuisance terms or frames evaluate their likelihood
+    through :mod:`olsbayes.posterior._general` (extras after the sources).
     """
 
     def __init__(self, model, data: np.ndarray, prior: ScenePrior, shift: np.ndarray,
-                 use_likelihood: bool = True):
+                 use_likelihood: bool = True, frames: bool = False):
         self.model = model
         self.data = np.asarray(data, dtype=float)
+        self.frames = bool(frames)
+        self.general = _general.is_general(model, prior, self.frames)
         self.prior = prior
         self.shift = np.asarray(shift, dtype=float)
         self.periodic = prior.periodic
@@ -112,13 +120,17 @@ class LogPosterior:
         return z
 
     def pointwise(self, x: np.ndarray) -> np.ndarray:
-        """Per-sub-sensor Gaussian log density, shape (..., N), at model parameters."""
+        """Per-sub-sensor log density, shape (..., N), at model parameters."""
+        if self.general:
+            return _general.pointwise(self.model, self.prior, self.data, x, self.frames)
         sigma = x[..., -1:] if self.prior.noise is not None else self.model.sigma
         resid = (self.data - self.model.response(x[..., : self.n_model])) / sigma
         return -0.5 * resid * resid - np.log(sigma) - 0.5 * _LOG_2PI
 
     def log_likelihood(self, x: np.ndarray) -> np.ndarray:
         """Total log-likelihood, shape (...,), at model parameters."""
+        if self.general:
+            return _general.log_likelihood(self.model, self.prior, self.data, x, self.frames)
         n = self.model.n_sensors
         resid = self.data - self.model.response(x[..., : self.n_model])
         chi2 = np.einsum("...n,...n->...", resid, resid)

@@ -28,6 +28,7 @@ from .._budget import check_memory
 from .._progress import progress_bar
 from .._validation import as_rng, integer, positive_float
 from ..errors import InputError
+from ..measurement import is_plain
 from ..model import Model
 from ..priors import CountPrior, ScenePrior, UniformCount, default_priors
 from .decide import finish, next_escalation
@@ -164,6 +165,7 @@ def select_k(
     options: SelectOptions | None = None,
     rng: np.random.Generator | int | None = None,
     progress: bool = True,
+    frames: bool = False,
 ) -> SelectionResult:
     """Evidence for K = 0..k_max sources and the posterior over K.
 
@@ -172,9 +174,11 @@ def select_k(
     Parameters
     ----------
     model : Model
-        Forward model with known noise sd ``model.sigma``.
-    data : ndarray, shape (N,)
-        One snapshot of the N sub-sensor readings.
+        Forward model.  With Gaussian noise of known sd and no nuisance terms the
+        pipeline below; any other noise model or nuisance terms (their extras
+        integrated under their priors) go through :mod:`olsbayes.select.general`.
+    data : ndarray, shape (N,), or (F, N) with ``frames``
+        One snapshot of the N sub-sensor readings (or F frames of one scene).
     k_max : int
         Largest number of sources considered, 0 <= k_max <= min(8, (N-1)//(d+1)).
     priors : None, mapping {K: ScenePrior} or callable K -> ScenePrior
@@ -203,11 +207,16 @@ def select_k(
         A status line on stderr while the call lasts (after a few seconds): the K
         being worked on and how (importance sampling, nested sampling, with the
         nested run's own status line).
+    frames : bool
+        ``data`` holds F frames of one static scene.
 
     Returns
     -------
     SelectionResult
     """
+    if frames is not False or (isinstance(model, Model) and not is_plain(model)):
+        return _general(model, data, k_max, priors, k_prior, i_max, method, options, rng,
+                        frames)
     t0 = time.perf_counter()
     data, k_max, options = _check(model, data, k_max, method, options)
     if not isinstance(progress, (bool, np.bool_)):
@@ -235,6 +244,26 @@ def select_k(
                                   bar)
     return finish(works, log_pk, method, escalated, options.decision,
                   time.perf_counter() - t0)
+
+
+def _general(model: Model, data: object, k_max: object, priors: object, k_prior: object,
+             i_max: object, method: object, options: object, rng: object, frames: object
+             ) -> SelectionResult:
+    """select_k for other noise models, nuisance terms or frames (arguments checked first)."""
+    from .general import select_general
+
+    high = min(K_MAX_LIMIT, (model.n_sensors - 1) // (model.n_loc + 1))
+    k_max = integer("k_max", k_max, low=0, high=high)
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}; got {method!r}")
+    if options is None:
+        options = SelectOptions()
+    elif not isinstance(options, SelectOptions):
+        raise InputError(f"options must be an olsbayes.select.SelectOptions or None; "
+                         f"got {type(options).__name__}")
+    return select_general(model, data, k_max, priors=priors,
+                          log_pk=_count_prior(k_prior, k_max), i_max=i_max, method=method,
+                          options=options, rng=rng, frames=frames)
 
 
 def _evidence(model: Model, data: np.ndarray, k: int, fitted: dict, prior: ScenePrior,
