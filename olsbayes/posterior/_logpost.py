@@ -81,6 +81,9 @@ class LogPosterior:
         with np.errstate(divide="ignore"):
             self._lo = np.where(self.log_scale, np.log(np.maximum(lo, 0.0)), lo)
             self._hi = np.where(self.log_scale, np.log(np.maximum(hi, 0.0)), hi)
+        sig = float(model.sigma)  # the known-noise constants of log_likelihood
+        self._var = sig**2
+        self._log_norm = model.n_sensors * (np.log(sig) + 0.5 * _LOG_2PI)
 
     def _x_of(self, z: np.ndarray) -> np.ndarray:
         """Parameters of sampler coordinates (angles not wrapped)."""
@@ -120,11 +123,11 @@ class LogPosterior:
     def log_likelihood(self, x: np.ndarray) -> np.ndarray:
         """Total log-likelihood, shape (...,), at model parameters."""
         n = self.model.n_sensors
-        resid = self.data - self.model.response(x[..., : self.n_model])
+        mu = self.model.response(x[..., : self.n_model])
+        resid = np.subtract(self.data, mu, out=mu)
         chi2 = np.einsum("...n,...n->...", resid, resid)
         if self.prior.noise is None:
-            sig = self.model.sigma
-            return -0.5 * chi2 / sig**2 - n * (np.log(sig) + 0.5 * _LOG_2PI)
+            return -0.5 * chi2 / self._var - self._log_norm
         sig = x[..., -1]
         with np.errstate(divide="ignore", invalid="ignore"):
             return -0.5 * chi2 / sig**2 - n * (np.log(sig) + 0.5 * _LOG_2PI)
