@@ -138,7 +138,7 @@ class LogPosterior:
         The log prior is the density of ``z`` (Jacobian included).
         """
         z = np.asarray(z, dtype=float)
-        inside = np.all((z >= self._lo) & (z <= self._hi), axis=-1)
+        inside = ((z >= self._lo) & (z <= self._hi)).all(axis=-1)
         x = self._x_of(z)  # angles need no wrapping: the kernel and the prior are periodic
         lp = self.prior.log_prob_inside(x)
         if self._any_log:
@@ -146,11 +146,11 @@ class LogPosterior:
         lp = np.where(inside, lp, -np.inf)
         if not self.use_likelihood:
             return lp, np.zeros_like(lp)
-        ll = np.full(lp.shape, -np.inf)
         ok = np.isfinite(lp)
-        if np.all(ok):
-            ll = self.log_likelihood(x)
-        elif np.any(ok):
+        if ok.all():
+            return lp, self.log_likelihood(x)
+        ll = np.full(lp.shape, -np.inf)
+        if ok.any():
             ll[ok] = self.log_likelihood(x[ok])
         return lp, ll
 

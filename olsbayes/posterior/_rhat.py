@@ -47,10 +47,12 @@ def _split_rhat_of_scores(split: np.ndarray) -> float:
     return float(np.sqrt((between / within + n - 1) / n))
 
 
-def rank_rhat(draws: np.ndarray) -> float:
+def rank_rhat(draws: np.ndarray, bound: float = np.inf) -> float:
     """Rank-normalised split R-hat of one parameter's draws (chains, draws).
 
     NaN with fewer than 2 chains or 4 draws, or when a draw is NaN (as ArviZ).
+    With a finite ``bound``, a bulk R-hat not below it is returned at once (the
+    tail R-hat cannot bring the maximum below the bound).
     """
     x = np.asarray(draws, dtype=float)
     if x.ndim != 2 or x.shape[0] < 2 or x.shape[1] < 4 or np.isnan(x).any():
@@ -58,6 +60,8 @@ def rank_rhat(draws: np.ndarray) -> float:
     half = x.shape[1] // 2
     split = np.concatenate([x[:, :half], x[:, -half:]])
     bulk = _split_rhat_of_scores(split)
+    if not bulk < bound:
+        return bulk
     tail = _split_rhat_of_scores(np.abs(split - np.median(split)))
     return max(bulk, tail)
 
@@ -90,7 +94,7 @@ class RhatCheck:
         x = _unwrapped(x, self.prior)
         order = [self.first] + [j for j in range(x.shape[-1]) if j != self.first]
         for j in order:
-            value = rank_rhat(x[..., j])
+            value = rank_rhat(x[..., j], self.rhat_max)
             if not value < self.rhat_max:
                 self.first, self.last = j, value
                 return False
