@@ -89,6 +89,9 @@ class LogPosterior:
         with np.errstate(divide="ignore"):
             self._lo = np.where(self.log_scale, np.log(np.maximum(lo, 0.0)), lo)
             self._hi = np.where(self.log_scale, np.log(np.maximum(hi, 0.0)), hi)
+        sig = float(model.sigma)  # the known-noise constants of log_likelihood
+        self._var = sig**2
+        self._log_norm = model.n_sensors * (np.log(sig) + 0.5 * _LOG_2PI)
 
     def _x_of(self, z: np.ndarray) -> np.ndarray:
         """Parameters of sampler coordinates (angles not wrapped)."""
@@ -132,11 +135,11 @@ class LogPosterior:
         if self.general:
             return _general.log_likelihood(self.model, self.prior, self.data, x, self.frames)
         n = self.model.n_sensors
-        resid = self.data - self.model.response(x[..., : self.n_model])
+        mu = self.model.response(x[..., : self.n_model])
+        resid = np.subtract(self.data, mu, out=mu)
         chi2 = np.einsum("...n,...n->...", resid, resid)
         if self.prior.noise is None:
-            sig = self.model.sigma
-            return -0.5 * chi2 / sig**2 - n * (np.log(sig) + 0.5 * _LOG_2PI)
+            return -0.5 * chi2 / self._var - self._log_norm
         sig = x[..., -1]
         with np.errstate(divide="ignore", invalid="ignore"):
             return -0.5 * chi2 / sig**2 - n * (np.log(sig) + 0.5 * _LOG_2PI)
@@ -147,7 +150,7 @@ class LogPosterior:
         The log prior is the density of ``z`` (Jacobian included).
         """
         z = np.asarray(z, dtype=float)
-        inside = np.all((z >= self._lo) & (z <= self._hi), axis=-1)
+        inside = ((z >= self._lo) & (z <= self._hi)).all(axis=-1)
         x = self._x_of(z)  # angles need no wrapping: the kernel and the prior are periodic
         lp = self.prior.log_prob_inside(x)
         if self._any_log:
@@ -155,11 +158,11 @@ class LogPosterior:
         lp = np.where(inside, lp, -np.inf)
         if not self.use_likelihood:
             return lp, np.zeros_like(lp)
-        ll = np.full(lp.shape, -np.inf)
         ok = np.isfinite(lp)
-        if np.all(ok):
-            ll = self.log_likelihood(x)
-        elif np.any(ok):
+        if ok.all():
+            return lp, self.log_likelihood(x)
+        ll = np.full(lp.shape, -np.inf)
+        if ok.any():
             ll[ok] = self.log_likelihood(x[ok])
         return lp, ll
 

@@ -2,17 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
 from .._progress import progress_bar
-from ..circular import circular_mean, wrap_angle
-from ..priors import ScenePrior
-from ._arviz import rhat_array
 from ._checkpoint import ChainCheckpoint
-from ._labels import relabel
 from ._logpost import LogPosterior
+from ._rhat import RhatCheck
 from .options import SamplerOptions, emcee_moves
 
 __all__ = ["make_sampler", "run_ensemble", "AutocorrTime"]
@@ -91,7 +86,7 @@ class _Convergence:
                  autocorr: AutocorrTime):
         self.sampler, self.options, self.autocorr = sampler, options, autocorr
         self.fixed = options.n_steps is not None
-        self.rhat_ok = _rhat_checker(sampler, logpost, logpost.prior, options.rhat_max)
+        self.rhat_ok = RhatCheck(sampler, logpost, options.rhat_max)
         self.old, self.next_rhat = np.inf, 0
         self.status = ""
 
@@ -111,63 +106,6 @@ class _Convergence:
         if np.isfinite(self.rhat_ok.last):  # the last R-hat measured, until the next
             self.status += f", R-hat {self.rhat_ok.last:.3f} -> needs < {opts.rhat_max:g}"
         return False
-
-
-def _rhat_checker(sampler, logpost: LogPosterior, prior: ScenePrior, rhat_max: float | None
-                  ) -> Callable[[float, int], bool]:
-    """Closure ``check(tmax, upto)``: max R-hat < rhat_max on the first ``upto`` steps.
-
-    ``check.last`` holds the R-hat of the parameter that failed last.
-
-    The draws checked are those the result keeps (same burn-in, thin 1), so a
-    converged result reports R-hat < rhat_max.  Raw draws are tried first; they
-    are relabelled only if they fail and K > 1.  R-hat is computed parameter by
-    parameter (each as in the joint computation) and the check stops at the
-    first one above the bound, starting with the one that failed last time.
-    """
-    first = [0]  # the parameter that failed last: checked first next time
-
-    def below(x: np.ndarray) -> bool:
-        """max R-hat < rhat_max, one parameter at a time, stopping at the first above."""
-        x = _unwrapped(x, prior)
-        order = [first[0]] + [j for j in range(x.shape[-1]) if j != first[0]]
-        for j in order:
-            value = float(rhat_array(x[..., j:j + 1])[0])
-            if not value < rhat_max:
-                first[0] = j
-                check.last = value
-                return False
-        return True
-
-    def check(tmax: float, upto: int) -> bool:
-        if rhat_max is None:
-            return True
-        chain = sampler.get_chain()[:upto]
-        n_burn = min(int(np.ceil(5 * tmax)), chain.shape[0] // 2)
-        z = chain[n_burn:].swapaxes(0, 1)
-        x = logpost.to_params(z)
-        if below(x):
-            return True
-        if prior.n_sources < 2:
-            return False
-        lpost = sampler.get_log_prob()[n_burn:upto].T - logpost.jacobian(z)
-        x, perms = relabel(x, prior.n_sources, prior.periodic[: prior.n_loc + 1], lpost)
-        if np.all(perms == np.arange(prior.n_sources)):
-            return False  # nothing relabelled: the same draws that just failed
-        return below(x)
-
-    check.last = float("nan")
-    return check
-
-
-def _unwrapped(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
-    """Draws (W, D, P) with angles unwrapped around their circular means (for R-hat)."""
-    if prior.periodic.any():
-        per = prior.periodic
-        centre = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)
-        x = x.copy()
-        x[..., per] = centre + wrap_angle(x[..., per] - centre)
-    return x
 
 
 class AutocorrTime:
