@@ -18,7 +18,7 @@ from .criteria import aic, bic
 from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
 from .mixture import mixture_log_evidence
-from .nested import nested_log_evidence
+from .nested_error import repeated_log_evidence, scaled_maxcall
 from .options import NestedOptions
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
@@ -199,12 +199,19 @@ def scalar_prior_transform(prior):
 
 def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: NestedOptions,
                 *, rng: np.random.Generator) -> KWork:
-    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
-    maxcall = options.maxcall
-    out = nested_log_evidence(scalar_log_likelihood(model, data), scalar_prior_transform(prior),
-                              prior.n_params,
-                              periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
-                              n_live=options.n_live, dlogz=options.dlogz)
+    """Replace a K's evidence by ``options.n_runs`` combined dynesty runs (Laplace kept).
+
+    The error includes the runs' scatter
+    (:func:`~olsbayes.select.nested_error.combine_runs`); runs stopped by their cap,
+    or disagreeing beyond their errors, make the value untrusted.
+    """
+    p = prior.n_params
+    live = options.n_live or max(100, 25 * p)
+    cap = options.maxcall or scaled_maxcall(p, live, n_sensors=model.n_sensors)
+    out = repeated_log_evidence(
+        scalar_log_likelihood(model, data), scalar_prior_transform(prior), p,
+        n_runs=options.n_runs, periodic=prior.periodic_indices, rng=rng, maxcall=cap,
+        n_live=live, dlogz=options.dlogz)
     lap = work.laplace
     if not work.reasons and np.isfinite(lap):
         gap = abs(out.log_evidence - lap)
@@ -213,11 +220,19 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
                 f"K={work.k}: Laplace log Z = {lap:.2f} and nested log Z = "
                 f"{out.log_evidence:.2f} +- {out.error:.2f} disagree by {gap:.2f} nats "
                 "although the Laplace diagnostics passed", EvidenceWarning, stacklevel=4)
-    reasons = work.reasons if out.converged else work.reasons + (
-        f"nested sampling stopped at maxcall={maxcall}",)
+    reasons = work.reasons
+    if not out.converged:
+        stopped = sum(not r.converged for r in out.runs)
+        reasons += (f"nested sampling stopped at maxcall={cap}"
+                    + (f" ({stopped} of {len(out.runs)} runs)" if len(out.runs) > 1 else ""),)
+    if out.disagree:
+        reasons += (f"{len(out.runs)} nested runs disagree by {out.spread:.2f} nats beyond "
+                    "their own errors (posterior mass found by some runs only)",)
+    stats = {**(work.stats or {}), "nested_within": out.within,
+             "nested_between": out.between, "nested_spread": out.spread}
     return dataclasses.replace(
         work, value=out.log_evidence, error=out.error, method="nested", reasons=reasons,
-        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds)
+        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds, stats=stats)
 
 
 def information_criterion(model: Model, k: int, fitted: tuple, method: str,

@@ -99,6 +99,7 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
 
 
 
+@pytest.mark.filterwarnings("ignore:the chosen K = .* is k_max")  # the weak source may win
 def test_a_nested_run_stopped_by_the_call_cap_is_flagged_in_the_table():
     from olsbayes.errors import ConvergenceWarning
 
@@ -107,7 +108,7 @@ def test_a_nested_run_stopped_by_the_call_cap_is_flagged_in_the_table():
         res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0,
                        options=SelectOptions(nested=NestedOptions(n_live=50, maxcall=1000)))
     assert list(res.escalated) == [1] and not res[1].trusted
-    assert res[1].reasons[-1] == "nested sampling stopped at maxcall=1000"
+    assert res[1].reasons[-1].startswith("nested sampling stopped at maxcall=1000")
     row = res.table().splitlines()[3]
     assert row.startswith(" 1") and "weak source" in row and "stopped at maxcall=1000" in row
 
