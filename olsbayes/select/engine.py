@@ -229,10 +229,20 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
         reasons += (f"{len(out.runs)} nested runs disagree by {out.spread:.2f} nats beyond "
                     "their own errors (posterior mass found by some runs only)",)
     stats = {**(work.stats or {}), "nested_within": out.within,
-             "nested_between": out.between, "nested_spread": out.spread}
-    return dataclasses.replace(
-        work, value=out.log_evidence, error=out.error, method="nested", reasons=reasons,
-        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds, stats=stats)
+             "nested_between": out.between, "nested_spread": out.spread,
+             "nested_log_evidence": out.log_evidence, "nested_error": out.error}
+    cost = {"n_calls": work.n_calls + out.n_calls, "seconds": work.seconds + out.seconds,
+            "stats": stats}
+    if work.method == "importance" and not mixture_doubt(work) and len(reasons) > len(
+            work.reasons):
+        # runs that missed mass (or stopped short) err low; the sound importance-sampling
+        # value (unbiased for Z, its own error small) stays
+        kept = (f"nested sampling ({out.log_evidence:.2f} +- {out.error:.2f} nats) not "
+                f"trusted: {'; '.join(reasons[len(work.reasons):])}; the importance-sampling "
+                "value is kept")
+        return dataclasses.replace(work, reasons=work.reasons + (kept,), **cost)
+    return dataclasses.replace(work, value=out.log_evidence, error=out.error, method="nested",
+                               reasons=reasons, **cost)
 
 
 def information_criterion(model: Model, k: int, fitted: tuple, method: str,

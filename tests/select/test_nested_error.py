@@ -75,3 +75,31 @@ def test_combined_error_holds_against_the_exact_evidence_of_one_source():
                                     periodic=prior.periodic_indices)
         assert out.converged and len(out.runs) == 3
         assert abs(out.log_evidence - ref) < 3 * math.hypot(out.error, ref_se), (seed, out, ref)
+
+
+@pytest.mark.filterwarnings("ignore:nested sampling stopped")
+def test_a_sound_importance_value_is_kept_when_the_nested_runs_are_not_trusted():
+    """Runs stopped by their cap err low: a K whose value came from importance sampling
+    with a small error and enough effective draws keeps it, and says why; an unsound
+    importance value is replaced."""
+    import dataclasses
+
+    from olsbayes.ml import fit_ml
+    from olsbayes.select.engine import laplace_work, nested_work
+
+    model = Model(Ring(16), 0.05)
+    prior = default_priors(model, 1, i_max=2.0)
+    data = model.simulate(np.array([0.7, 0.3]), rng=np.random.default_rng(100))
+    fit = fit_ml(model, data, 1)
+    work = laplace_work(model, 1, (fit, fit.params, float(fit.log_likelihood), "fit_ml"),
+                        prior, None)
+    sound = dataclasses.replace(work, method="importance", value=-1.0, error=0.1,
+                                stats={"mixture_error": 0.1, "mixture_ess": 500.0})
+    short = NestedOptions(maxcall=1000, n_live=20, n_runs=2)
+    out = nested_work(model, data, sound, prior, short, rng=np.random.default_rng(0))
+    assert out.method == "importance" and out.value == -1.0 and out.error == 0.1
+    assert out.reasons[-1].endswith("the importance-sampling value is kept")
+    assert "maxcall=1000 (2 of 2 runs)" in out.reasons[-1]
+    doubtful = dataclasses.replace(sound, stats={"mixture_error": 0.9, "mixture_ess": 5.0})
+    out = nested_work(model, data, doubtful, prior, short, rng=np.random.default_rng(0))
+    assert out.method == "nested" and out.value != -1.0
