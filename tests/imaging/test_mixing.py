@@ -28,3 +28,11 @@ def test_bounded_intervals_are_calibrated_when_the_truth_is_drawn_from_the_prior
         hits.append(res.covers(truth))
     cov = float(np.mean(hits))
     assert abs(cov - 0.9) < 4 * np.sqrt(0.09 / 180), cov
+
+
+def test_the_two_level_gibbs_sampler_is_withdrawn_with_its_reason():
+    with pytest.raises(AttributeError, match="does not mix at sigma = 0.01"):
+        ob.imaging.two_level_gibbs  # noqa: B018
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        ob.imaging.nope  # noqa: B018
+    assert "two_level_gibbs" not in ob.imaging.__all__
