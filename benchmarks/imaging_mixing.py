@@ -153,12 +153,14 @@ def main(argv=None):
     ap.add_argument("--trials", type=int, default=None, help="coverage draws")
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--only", choices=("box", "two-level", "coverage"), default=None)
+    ap.add_argument("--samplers", default="gibbs,hmc",
+                    help="box-prior samplers, comma-separated (hmc is slow on 'grid')")
     args = ap.parse_args(argv)
     n = args.samples or (2000 if args.full else 200)
     trials = args.trials or (100 if args.full else 10)
     if args.only in (None, "box"):
         _print([box_row(s, p, smp, n, args.chains, args.seed) for s in ("grid", "linspace")
-                for p in ("nonnegative", "bounded") for smp in ("gibbs", "hmc")])
+                for p in ("nonnegative", "bounded") for smp in args.samplers.split(",")])
     if args.only in (None, "two-level"):
         _print([two_level_row(s, st, n, args.chains, args.seed) for s in ("grid", "linspace")
                 for st in ("map", "dispersed")])
