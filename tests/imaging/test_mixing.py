@@ -36,3 +36,13 @@ def test_the_two_level_gibbs_sampler_is_withdrawn_with_its_reason():
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         ob.imaging.nope  # noqa: B018
     assert "two_level_gibbs" not in ob.imaging.__all__
+
+
+def test_the_result_reports_its_smallest_effective_sample_size():
+    model = ob.Model(ob.Ring(8), sigma=0.3)
+    y = model.simulate(np.array([-1.0, 0.5, 1.5, 0.5]), rng=np.random.default_rng(1))
+    res = ob.imaging.image(model, y, [-1.0, 1.5], Bounded(i_max=3.0), rng=2,
+                           options=ImageOptions(n_samples=100, n_burn=20, n_chains=2))
+    assert 20 < res.ess <= 2 * 100 * 1.5 and res.diagnostics()["ess"] == res.ess
+    closed = ob.imaging.image(model, y, [-1.0, 1.5], "gaussian")
+    assert np.isnan(closed.ess)
