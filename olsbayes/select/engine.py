@@ -207,7 +207,8 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
     """
     p = prior.n_params
     live = options.n_live or max(100, 25 * p)
-    cap = options.maxcall or scaled_maxcall(p, live, n_sensors=model.n_sensors)
+    cap = options.maxcall or scaled_maxcall(p, live, n_sensors=model.n_sensors,
+                                            n_runs=options.n_runs)
     out = repeated_log_evidence(
         scalar_log_likelihood(model, data), scalar_prior_transform(prior), p,
         n_runs=options.n_runs, periodic=prior.periodic_indices, rng=rng, maxcall=cap,

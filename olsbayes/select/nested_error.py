@@ -130,14 +130,14 @@ def combine_runs(runs: Sequence[NestedEvidence]) -> RepeatedEvidence:
 
 
 def scaled_maxcall(n_params: int, n_live: int, *, h_param: float = 10.0,
-                   n_sensors: int = 0) -> int:
+                   n_sensors: int = 0, n_runs: int = 1) -> int:
     """Call cap of one nested run for P parameters and ``n_live`` live points.
 
     ``n_live (P h_param + 10) (3 + P) CALLS_PER_SLICE``: iterations to compress
     the prior by ``h_param`` nats per parameter plus 10 nats of stopping margin,
     times dynesty's ``rslice`` calls per iteration.  At most the calls whose
     saved points (P + 4 floats each, plus the ``n_live`` live points with their
-    N-reading responses) fit in the memory budget
+    N-reading responses) of ``n_runs`` kept runs fit in the memory budget
     (:func:`olsbayes._budget.memory_limit`), and at least 1000.
 
     Parameters
@@ -152,13 +152,16 @@ def scaled_maxcall(n_params: int, n_live: int, *, h_param: float = 10.0,
         SNR 10^2-10^3.
     n_sensors : int
         Readings N per likelihood call (only for the memory bound).
+    n_runs : int
+        Runs whose saved points are kept together (>= 1; only for the memory bound).
     """
     p = integer("n_params", n_params, low=1)
     live = integer("n_live", n_live, low=p + 1)
     h = positive_float("h_param", h_param)
     calls = live * (p * h + 10.0) * (3 + p) * CALLS_PER_SLICE
     live_bytes = 8.0 * live * (integer("n_sensors", n_sensors, low=0) + p) * 4
-    by_memory = (memory_limit() - live_bytes) / (8.0 * (p + 4))
+    runs = integer("n_runs", n_runs, low=1)
+    by_memory = (memory_limit() / runs - live_bytes) / (8.0 * (p + 4))
     return int(max(1000, min(calls, by_memory)))
 
 
@@ -196,8 +199,8 @@ def repeated_log_evidence(
     ndim = integer("ndim", ndim, low=1)
     n_runs = integer("n_runs", n_runs, low=1)
     live = max(100, 25 * ndim) if n_live is None else integer("n_live", n_live, low=ndim + 1)
-    cap = scaled_maxcall(ndim, live) if maxcall is None else integer("maxcall", maxcall,
-                                                                     low=1000)
+    cap = (scaled_maxcall(ndim, live, n_runs=n_runs) if maxcall is None
+           else integer("maxcall", maxcall, low=1000))
     streams = as_rng(rng).spawn(n_runs)
     runs = [nested_log_evidence(log_likelihood, prior_transform, ndim, rng=s, maxcall=cap,
                                 n_live=live, **kwargs) for s in streams]

@@ -148,9 +148,11 @@ def _check_memory(model: Model, k_max: int, method: str, options: SelectOptions)
     if method in ("auto", "nested") and k_max:
         nested = options.nested
         live = nested.n_live if nested.n_live is not None else max(100, 25 * p_max)
-        cap = nested.maxcall or scaled_maxcall(p_max, max(live, p_max + 1), n_sensors=n)
-        check_memory(f"n_live={live} and maxcall={cap} x {p_max} parameters",
-                     8.0 * (live * (n + p_max) * 4 + cap * (p_max + 4)))
+        cap = nested.maxcall or scaled_maxcall(p_max, max(live, p_max + 1), n_sensors=n,
+                                               n_runs=nested.n_runs)
+        check_memory(f"n_live={live}, maxcall={cap} x {p_max} parameters x "
+                     f"n_runs={nested.n_runs}",
+                     8.0 * nested.n_runs * (live * (n + p_max) * 4 + cap * (p_max + 4)))
 
 
 def select_k(
