@@ -44,8 +44,9 @@ register_section(Section(
         "k_max": Field("int", default=4, low=0, high=8, doc="largest K considered"),
         "method": Field("str", default="auto", choices=METHODS, doc="evidence estimator"),
         "i_max": Field("float", positive=True, doc="upper end of the intensity prior"),
-        "maxcall": Field("int", default=300_000, low=1000, high=100_000_000,
-                         doc="likelihood-call cap per nested-sampling run"),
+        "maxcall": Field("int", low=1000, high=100_000_000,
+                         doc="likelihood-call cap per nested-sampling run (default: scaled "
+                             "with the parameters and live points)"),
         "tie": Field("float", default=math.log(3.0), low=0.0, high=100.0,
                      doc="nats within which the smaller K is preferred"),
     },
@@ -67,7 +68,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--i-max", type=float, default=None, metavar="I",
                    help="upper end of the uniform intensity prior (default: from the data)")
     p.add_argument("--maxcall", type=int, default=None, metavar="M",
-                   help="likelihood-call cap per nested-sampling run (default 300000)")
+                   help="likelihood-call cap per nested-sampling run (default: scaled with "
+                        "the parameters and live points, within the memory budget)")
     add_seed_arg(p, help="seed of the ML restarts, nested sampling and a [data] simulation")
     add_quiet_arg(p)
     add_json_arg(p)
@@ -80,7 +82,7 @@ def _options(args: argparse.Namespace, cfg: Any) -> dict[str, Any]:
         "k_max": args.k_max if args.k_max is not None else sec.get("k_max", 4),
         "method": args.method or sec.get("method", "auto"),
         "i_max": args.i_max if args.i_max is not None else sec.get("i_max"),
-        "maxcall": args.maxcall if args.maxcall is not None else sec.get("maxcall", 300_000),
+        "maxcall": args.maxcall if args.maxcall is not None else sec.get("maxcall"),
         "tie": sec.get("tie", math.log(3.0)),
     }
     if opts["i_max"] is not None and not (math.isfinite(opts["i_max"]) and opts["i_max"] > 0):

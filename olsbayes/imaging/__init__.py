@@ -19,7 +19,8 @@ every result flags (and warns about) a posterior that piles up at its bound.
 """
 
 from .binary import BinaryMap, two_level_log_posterior, two_level_map
-from .binary_gibbs import BinaryGibbs, credible_sets, two_level_gibbs
+from .binary_gibbs import WITHDRAWN as _GIBBS_WITHDRAWN
+from .binary_gibbs import credible_sets
 from .core import image
 from .design import Design, analyse_design, check_directions, design_matrix
 from .eigen import eigen_gibbs
@@ -72,9 +73,14 @@ __all__ = [
     "BinaryMap",
     "two_level_map",
     "two_level_log_posterior",
-    "BinaryGibbs",
-    "two_level_gibbs",
     "credible_sets",
     "hpd_interval",
     "split_rhat",
 ]
+
+
+def __getattr__(name: str):
+    """A withdrawn sampler named as an attribute: say why it is not offered."""
+    if name in _GIBBS_WITHDRAWN:
+        raise AttributeError(f"olsbayes.imaging.{name} is not offered: {_GIBBS_WITHDRAWN[name]}")
+    raise AttributeError(f"module 'olsbayes.imaging' has no attribute {name!r}")

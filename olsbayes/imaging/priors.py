@@ -202,8 +202,9 @@ class TwoLevel(_BoxPrior):
     """Two-level prior: each intensity is 0 or ``i_max``, bright with probability ``p_bright``.
 
     The posterior is reported by its MAP scene, found by a local search
-    (:mod:`olsbayes.imaging.binary`); ``olsbayes.imaging.two_level_gibbs``
-    samples it.
+    (:mod:`olsbayes.imaging.binary`).  No sampler of it is offered: the block
+    Gibbs sampler of :mod:`olsbayes.imaging.binary_gibbs` does not mix at the
+    noise levels of interest (its ``WITHDRAWN``).
 
     Attributes
     ----------

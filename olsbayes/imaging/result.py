@@ -156,6 +156,25 @@ class ImageResult:
         """Per direction, how much of its intensity the readings cannot see (0..1)."""
         return self.design.null_fraction
 
+    @property
+    def ess(self) -> float:
+        """Smallest rank-normalised bulk effective sample size over the intensities.
+
+        Computed by arviz from ``samples`` (all chains); NaN without draws.  With
+        ``rhat`` it tells whether the sd and intervals can be trusted (targets:
+        R-hat <= 1.01, ESS >= 400).
+        """
+        if self.samples is None or self.samples.shape[1] < 4:
+            return float("nan")
+        from ..posterior._arviz import _known_shapes, import_arviz
+
+        az = import_arviz()
+        with _known_shapes():
+            ds = az.convert_to_dataset(np.asarray(self.samples, dtype=float))
+        ess = np.asarray(az.ess(ds, method="bulk")["x"].values, dtype=float)
+        ess = ess[np.isfinite(ess)]  # a column constant in every chain has none
+        return float(ess.min()) if ess.size else float("nan")
+
     def covers(self, truth: np.ndarray) -> np.ndarray:
         """Boolean mask, shape (K,): whether each interval contains ``truth``."""
         t = np.asarray(truth, dtype=float)
@@ -200,6 +219,7 @@ class ImageResult:
             "mean_sd": float(np.mean(self.sd)),
             "log_evidence": self.log_evidence,
             "rhat": self.rhat,
+            "ess": self.ess,
             "acceptance": self.acceptance,
             "sampler": self.sampler,
             "n_draws": 0 if self.samples is None else int(np.prod(self.samples.shape[:2])),

@@ -14,7 +14,10 @@ Estimators
       angle volume capped at the whole circle.  Exact on linear-Gaussian
       problems (:func:`linear_gaussian_log_evidence`).
     * dynesty nested sampling (:func:`nested_log_evidence`): ``rslice``,
-      periodic angles, seeded Generator, always capped by ``maxcall``.
+      periodic angles, seeded Generator, always capped by ``maxcall``;
+      :func:`repeated_log_evidence` combines independent runs with an error
+      that includes their scatter (what ``select_k`` uses), under a call cap
+      scaled with the problem (:func:`scaled_maxcall`).
     * mixture importance sampling over the source locations, intensities
       integrated analytically (:func:`mixture_log_evidence`): replaces every
       untrusted or undefined Laplace value (intensity at its bound 0 with a free
@@ -62,6 +65,7 @@ from .laplace import (
 )
 from .mixture import MixtureEvidence, mixture_log_evidence
 from .nested import NestedEvidence, nested_log_evidence
+from .nested_error import RepeatedEvidence, repeated_log_evidence, scaled_maxcall
 from .options import DecisionOptions, LaplaceOptions, NestedOptions, SelectOptions
 from .result import KEvidence, SelectionResult
 from .select import METHODS, select_k
@@ -94,6 +98,9 @@ __all__ = [
     "mixture_log_evidence",
     "MixtureEvidence",
     "NestedEvidence",
+    "repeated_log_evidence",
+    "RepeatedEvidence",
+    "scaled_maxcall",
     "laplace_trust",
     "sensor_spacing",
     "min_separation",

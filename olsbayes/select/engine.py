@@ -19,7 +19,8 @@ from .criteria import aic, bic
 from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
 from .mixture import mixture_log_evidence
-from .nested import NestedCheckpoint, nested_log_evidence
+from .nested import NestedCheckpoint
+from .nested_error import repeated_log_evidence, scaled_maxcall
 from .options import NestedOptions
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
@@ -177,7 +178,7 @@ def nested_key(model: Model, data: np.ndarray, prior, options: NestedOptions) ->
 
     from .._provenance import data_sha256
 
-    text = repr([repr(model), data_sha256(data), repr(prior), options.n_live])
+    text = repr([repr(model), data_sha256(data), repr(prior), options.n_live, options.dlogz])
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -230,21 +231,27 @@ class ScalarPriorTransform:
 
 def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: NestedOptions,
                 *, rng: np.random.Generator, progress: bool = False) -> KWork:
-    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept).
+    """Replace a K's evidence by ``options.n_runs`` combined dynesty runs (Laplace kept).
 
-    With ``options.checkpoint_dir`` the run is checkpointed to
-    ``nested-k<K>.pkl`` there (and continued from it).
+    The error includes the runs' scatter
+    (:func:`~olsbayes.select.nested_error.combine_runs`); runs stopped by their cap,
+    or disagreeing beyond their errors, make the value untrusted.  With
+    ``options.checkpoint_dir`` run r is checkpointed to ``nested-k<K>-run<r>.pkl``
+    there (and continued from it).  dynesty's results of the first run are kept.
     """
-    maxcall = options.maxcall
-    ckpt = None
+    p = prior.n_params
+    live = options.n_live or max(100, 25 * p)
+    cap = options.maxcall or scaled_maxcall(p, live, n_sensors=model.n_sensors,
+                                            n_runs=options.n_runs)
+    ckpts = None
     if options.checkpoint_dir is not None:
-        ckpt = NestedCheckpoint(Path(options.checkpoint_dir) / f"nested-k{work.k}.pkl",
-                                nested_key(model, data, prior, options))
-    out = nested_log_evidence(scalar_log_likelihood(model, data), scalar_prior_transform(prior),
-                              prior.n_params,
-                              periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
-                              n_live=options.n_live, dlogz=options.dlogz, progress=progress,
-                              checkpoint=ckpt)
+        key = nested_key(model, data, prior, options)
+        ckpts = [NestedCheckpoint(Path(options.checkpoint_dir) / f"nested-k{work.k}-run{r}.pkl",
+                                  key) for r in range(options.n_runs)]
+    out = repeated_log_evidence(
+        scalar_log_likelihood(model, data), scalar_prior_transform(prior), p,
+        n_runs=options.n_runs, periodic=prior.periodic_indices, rng=rng, maxcall=cap,
+        n_live=live, dlogz=options.dlogz, progress=progress, checkpoints=ckpts)
     lap = work.laplace
     if not work.reasons and np.isfinite(lap):
         gap = abs(out.log_evidence - lap)
@@ -253,12 +260,29 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
                 f"K={work.k}: Laplace log Z = {lap:.2f} and nested log Z = "
                 f"{out.log_evidence:.2f} +- {out.error:.2f} disagree by {gap:.2f} nats "
                 "although the Laplace diagnostics passed", EvidenceWarning, stacklevel=4)
-    reasons = work.reasons if out.converged else work.reasons + (
-        f"nested sampling stopped at maxcall={maxcall}",)
-    return dataclasses.replace(
-        work, value=out.log_evidence, error=out.error, method="nested", reasons=reasons,
-        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds,
-        nested=out.run)
+    reasons = work.reasons
+    if not out.converged:
+        stopped = sum(not r.converged for r in out.runs)
+        reasons += (f"nested sampling stopped at maxcall={cap}"
+                    + (f" ({stopped} of {len(out.runs)} runs)" if len(out.runs) > 1 else ""),)
+    if out.disagree:
+        reasons += (f"{len(out.runs)} nested runs disagree by {out.spread:.2f} nats beyond "
+                    "their own errors (posterior mass found by some runs only)",)
+    stats = {**(work.stats or {}), "nested_within": out.within,
+             "nested_between": out.between, "nested_spread": out.spread,
+             "nested_log_evidence": out.log_evidence, "nested_error": out.error}
+    cost = {"n_calls": work.n_calls + out.n_calls, "seconds": work.seconds + out.seconds,
+            "stats": stats, "nested": out.runs[0].run}
+    if work.method == "importance" and not mixture_doubt(work) and len(reasons) > len(
+            work.reasons):
+        # runs that missed mass (or stopped short) err low; the sound importance-sampling
+        # value (unbiased for Z, its own error small) stays
+        kept = (f"nested sampling ({out.log_evidence:.2f} +- {out.error:.2f} nats) not "
+                f"trusted: {'; '.join(reasons[len(work.reasons):])}; the importance-sampling "
+                "value is kept")
+        return dataclasses.replace(work, reasons=work.reasons + (kept,), **cost)
+    return dataclasses.replace(work, value=out.log_evidence, error=out.error, method="nested",
+                               reasons=reasons, **cost)
 
 
 def information_criterion(model: Model, k: int, fitted: tuple, method: str,

@@ -32,7 +32,6 @@ from ..priors import ScenePrior
 from .diagnostics import laplace_trust
 from .engine import KWork
 from .laplace import LOG_2PI, support_log_mass
-from .nested import nested_log_evidence
 from .options import NestedOptions
 
 __all__ = ["noise_work_general", "laplace_work_general", "nested_work_general",
@@ -125,16 +124,24 @@ def laplace_work_general(model: Model, data: np.ndarray, k: int, fit, prior: Sce
 def nested_work_general(model: Model, data: np.ndarray, work: KWork, prior: ScenePrior,
                         options: NestedOptions, frames: bool, *,
                         rng: np.random.Generator) -> KWork:
-    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
+    """Replace a K's evidence by ``options.n_runs`` combined dynesty runs (Laplace kept)."""
     import dataclasses
 
+    from .nested_error import repeated_log_evidence, scaled_maxcall
+
     log_like = general_log_likelihood(model, data, model.n_params(work.k), frames)
-    out = nested_log_evidence(lambda z: float(log_like(z)), prior.ppf, prior.n_params,
-                              periodic=prior.periodic_indices, rng=rng,
-                              maxcall=options.maxcall, n_live=options.n_live,
-                              dlogz=options.dlogz)
+    p = prior.n_params
+    live = options.n_live or max(100, 25 * p)
+    cap = options.maxcall or scaled_maxcall(p, live, n_sensors=model.n_sensors,
+                                            n_runs=options.n_runs)
+    out = repeated_log_evidence(lambda z: float(log_like(z)), prior.ppf, p,
+                                n_runs=options.n_runs, periodic=prior.periodic_indices,
+                                rng=rng, maxcall=cap, n_live=live, dlogz=options.dlogz)
     reasons = work.reasons if out.converged else work.reasons + (
-        f"nested sampling stopped at maxcall={options.maxcall}",)
+        f"nested sampling stopped at maxcall={cap}",)
+    if out.disagree:
+        reasons += (f"{len(out.runs)} nested runs disagree by {out.spread:.2f} nats beyond "
+                    "their own errors (posterior mass found by some runs only)",)
     return dataclasses.replace(
         work, value=out.log_evidence, error=out.error, method="nested", reasons=reasons,
         n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds)

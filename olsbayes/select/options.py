@@ -64,13 +64,20 @@ class NestedOptions:
 
     Attributes
     ----------
-    maxcall : int
-        Cap on likelihood calls per run (>= 1000); a run stopped by it is flagged.
+    maxcall : int or None
+        Cap on likelihood calls per run (>= 1000); a run stopped by it is
+        flagged.  None (default): scaled with the parameters P and the live
+        points (:func:`~olsbayes.select.nested_error.scaled_maxcall`), within
+        the memory budget.
     n_live : int or None
-        Live points; None: ``max(100, 25 P)`` for P parameters.  More than P of
-        the largest K that may be sampled (checked by ``select_k``).
+        Live points of each run; None: ``max(100, 25 P)`` for P parameters.
+        More than P of the largest K that may be sampled (checked by ``select_k``).
     dlogz : float
         Stopping tolerance on the remaining evidence (nats, > 0).
+    n_runs : int
+        Independent runs per K (>= 1), combined with an error that includes
+        their scatter (:func:`~olsbayes.select.nested_error.combine_runs`);
+        runs that disagree beyond their errors flag the value as untrusted.
     checkpoint_dir : path or None
         Folder where every nested run keeps its sampler (``nested-k<K>.pkl``,
         written every minute and at the end) and from which a run started again
@@ -78,9 +85,10 @@ class NestedOptions:
         resume only from folders you wrote.
     """
 
-    maxcall: int = 300_000
+    maxcall: int | None = None
     n_live: int | None = None
     dlogz: float = 0.5
+    n_runs: int = 3
     checkpoint_dir: str | os.PathLike | None = None
 
     def __post_init__(self) -> None:
@@ -90,7 +98,9 @@ class NestedOptions:
                                  f"got {type(self.checkpoint_dir).__name__}")
             object.__setattr__(self, "checkpoint_dir",
                                ensure_dir(self.checkpoint_dir, "checkpoint_dir"))
-        object.__setattr__(self, "maxcall", integer("maxcall", self.maxcall, low=1000))
+        if self.maxcall is not None:
+            object.__setattr__(self, "maxcall", integer("maxcall", self.maxcall, low=1000))
+        object.__setattr__(self, "n_runs", integer("n_runs", self.n_runs, low=1))
         if self.n_live is not None:
             object.__setattr__(self, "n_live", integer("n_live", self.n_live, low=2))
         object.__setattr__(self, "dlogz", positive_float("dlogz", self.dlogz))

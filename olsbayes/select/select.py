@@ -43,6 +43,7 @@ from .engine import (
 )
 from .fits import fit_all
 from .mixture import MAX_SOURCES
+from .nested_error import scaled_maxcall
 from .options import SelectOptions
 from .result import SelectionResult
 
@@ -149,8 +150,11 @@ def _check_memory(model: Model, k_max: int, method: str, options: SelectOptions)
     if method in ("auto", "nested") and k_max:
         nested = options.nested
         live = nested.n_live if nested.n_live is not None else max(100, 25 * p_max)
-        check_memory(f"n_live={live} and maxcall={nested.maxcall} x {p_max} parameters",
-                     8.0 * (live * (n + p_max) * 4 + nested.maxcall * (p_max + 4)))
+        cap = nested.maxcall or scaled_maxcall(p_max, max(live, p_max + 1), n_sensors=n,
+                                               n_runs=nested.n_runs)
+        check_memory(f"n_live={live}, maxcall={cap} x {p_max} parameters x "
+                     f"n_runs={nested.n_runs}",
+                     8.0 * nested.n_runs * (live * (n + p_max) * 4 + cap * (p_max + 4)))
 
 
 def select_k(

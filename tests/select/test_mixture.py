@@ -14,49 +14,23 @@ import math
 
 import numpy as np
 import pytest
+from reference.quadrature import exact_log_evidence as _exact
 from scipy.special import logsumexp
 
 from olsbayes import Model, Ring
 from olsbayes.priors import default_priors
 from olsbayes.select import LaplaceOptions, SelectOptions, select_k
 from olsbayes.select.mixture import mixture_log_evidence
-from olsbayes.studies.sbc_exact import _screen, _unit_responses
+from olsbayes.studies.sbc_exact import _unit_responses
 
 MODEL = Model(Ring(16), 0.05)
 I_MAX = 2.0
 H = 2 * np.pi / 16
 
 
-def exact_log_evidence(data: np.ndarray, k: int, seed: int, ngrid: int = 256,
-                       per_cell: int = 4) -> tuple[float, float]:
-    """log Z_K (uniform directions, intensities Uniform(0, I_MAX)) and its standard error:
-    grid cells within 40 nats of the best, ``per_cell`` uniform draws in each, the
-    intensities drawn from their conditional Gaussian and kept inside the box."""
-    rng = np.random.default_rng(seed)
-    s2, n_s = MODEL.sigma**2, MODEL.n_sensors
-    cells = np.repeat(_screen(MODEL, data, k, ngrid, 40.0), per_cell, axis=0)
-    n, h = len(cells), 2 * np.pi / ngrid
-    theta = -np.pi + h * (cells + rng.uniform(-0.5, 0.5, cells.shape))
-    g = _unit_responses(MODEL, theta.ravel()).reshape(n, k, -1).swapaxes(1, 2)
-    gram = np.einsum("nsi,nsj->nij", g, g)
-    sign, logdet = np.linalg.slogdet(gram)
-    ok = (sign > 0) & (logdet > np.sum(np.log(np.diagonal(gram, axis1=1, axis2=2)), -1) - 25)
-    gram = np.where(ok[:, None, None], gram, np.eye(k))
-    cov = np.linalg.inv(gram) * s2
-    rhs = np.einsum("nsi,s->ni", g, data) / s2
-    i_hat = np.einsum("nij,nj->ni", cov, rhs)
-    chi2 = data @ data / s2 - np.einsum("ni,ni->n", i_hat, rhs)
-    root = np.linalg.cholesky(0.5 * (cov + cov.swapaxes(1, 2)))
-    inten = i_hat + np.einsum("nij,nj->ni", root, rng.standard_normal((n, k)))
-    inside = ok & np.all((inten >= 0) & (inten <= I_MAX), axis=-1)
-    log_w = np.where(inside, -0.5 * chi2 + 0.5 * np.log(np.linalg.det(cov))
-                     + 0.5 * k * math.log(2 * math.pi), -np.inf)
-    log_mean = logsumexp(log_w) - math.log(n)
-    w = np.exp(log_w - log_mean)
-    # sum over kept cells of the in-cell mean, times the cell area h^k and the prior density
-    log_z = (-0.5 * n_s * math.log(2 * math.pi * s2) - k * math.log(2 * np.pi * I_MAX)
-             + k * math.log(h) + log_mean + math.log(n / per_cell))
-    return float(log_z), float(np.std(w) / math.sqrt(n))
+def exact_log_evidence(data: np.ndarray, k: int, seed: int) -> tuple[float, float]:
+    """log Z_K of :data:`MODEL` with intensities Uniform(0, I_MAX), and its standard error."""
+    return _exact(MODEL, data, k, I_MAX, seed)
 
 
 def _scene(sources, seed):

@@ -17,7 +17,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:the chosen K = 1 is k_max")  # K
 
 MODEL = Model(Ring(12), 0.05)
 DATA = MODEL.simulate(np.array([0.4, 1.0]), rng=np.random.default_rng(2))
-OPTS = SelectOptions(nested=NestedOptions(maxcall=20_000, n_live=30, dlogz=1.0))
+OPTS = SelectOptions(nested=NestedOptions(maxcall=20_000, n_live=30, dlogz=1.0, n_runs=1))
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def test_selection_keeps_dynesty_results_with_run_and_trace_plots(nested_selecti
     run = nested_selection[1].nested
     assert isinstance(run, NestedRun)
     a = run.arrays
-    # dynesty's own final log Z is the evidence reported
+    # one run: dynesty's own final log Z is the evidence reported
     assert float(a["logz"][-1]) == nested_selection[1].log_evidence
     assert a["samples"].shape[1] == 2 and a["logwt"].shape == a["logl"].shape
     for kind in ("run", "trace"):
@@ -85,7 +85,8 @@ def test_select_k_nested_checkpoint_dir(tmp_path):
                                               checkpoint_dir=tmp_path / "ck"))
     first = select_k(MODEL, DATA, k_max=1, method="nested", options=opts, rng=3, i_max=2.0,
                      progress=False)
-    assert (tmp_path / "ck" / "nested-k1.pkl").exists()
+    assert (tmp_path / "ck" / "nested-k1-run0.pkl").exists()
+    assert (tmp_path / "ck" / "nested-k1-run2.pkl").exists()
     again = select_k(MODEL, DATA, k_max=1, method="nested", options=opts, rng=3, i_max=2.0,
                      progress=False)
     assert again[1].log_evidence == first[1].log_evidence

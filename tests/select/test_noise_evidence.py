@@ -47,7 +47,7 @@ def test_k1_evidence_with_unknown_sigma_matches_quadrature():
     rss = c - 2 * ii[None, :] * b[:, None] + ii[None, :] ** 2 * np.diag(a)[:, None]
     lz = _log_z_sigma(rss, n, 0.005, 0.5)
     expect = float(logsumexp(lz) - np.log(lz.size))  # uniform theta and I on the grid
-    opts = SelectOptions(nested=NestedOptions(n_live=100, maxcall=300_000))
+    opts = SelectOptions(nested=NestedOptions(n_live=100, maxcall=300_000, n_runs=1))
     with pytest.warns(ob.EvidenceWarning, match="is k_max"):
         lap = ob.select_k(model, data, 1, priors={1: prior}, method="laplace")
     with pytest.warns(ob.EvidenceWarning, match="is k_max"):
