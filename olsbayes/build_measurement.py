@@ -22,7 +22,7 @@ from .noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, NoiseModel
 from .nuisance import Nuisance
 
 __all__ = ["measurement_from_config", "frames_from_config", "prior_from_config",
-           "sampler_options_from_config"]
+           "count_prior_from_config", "sampler_options_from_config"]
 
 
 def _fail(cfg: Config, message: str) -> ConfigError:
@@ -117,13 +117,19 @@ def frames_from_config(cfg: Config) -> bool:
 
 
 def prior_from_config(cfg: Config, model: Any, n_sources: int, data: np.ndarray,
-                      frames: bool = False) -> Any:
-    """The posterior's :class:`~olsbayes.priors.ScenePrior` from [prior], or None without it."""
+                      frames: bool = False, *, i_max: float | None = None) -> Any:
+    """The :class:`~olsbayes.priors.ScenePrior` of K sources from [prior], or None without it.
+
+    ``i_max`` (a command-line bound) is used when [prior] gives none; both: ConfigError.
+    """
     from .priors import default_priors
 
     sec = cfg.get("prior")
     if not sec:
         return None
+    if i_max is not None and "i_max" in sec:
+        raise _fail(cfg, "give the intensity bound once: [prior] i_max or the command's "
+                         "i_max (--i-max, [select] i_max)")
     lo, hi = sec.get("sigma_min"), sec.get("sigma_max")
     if (lo is None) != (hi is None) or (lo is not None and lo >= hi):
         raise _fail(cfg, "[prior] sigma_min and sigma_max come together, sigma_min < sigma_max")
@@ -131,12 +137,26 @@ def prior_from_config(cfg: Config, model: Any, n_sources: int, data: np.ndarray,
         raise _fail(cfg, "[prior] sigma_min / sigma_max apply to [noise] model = "
                          "'gaussian-unknown'")
     try:
-        prior = default_priors(model, n_sources, i_max=sec.get("i_max"), data=data,
+        prior = default_priors(model, n_sources, i_max=sec.get("i_max", i_max), data=data,
                                intensity=sec.get("intensity", "uniform"),
                                sigma_range=None if lo is None else (lo, hi), frames=frames)
     except InputError as exc:
         raise _fail(cfg, f"[prior] {exc}") from None
     return prior
+
+
+def count_prior_from_config(cfg: Config, k_max: int) -> Any:
+    """The prior on K of [prior] ``k_prior`` (and ``k_mean``), or None (uniform) without it."""
+    from .priors import PoissonCount, UniformCount
+
+    sec = cfg.get("prior") or {}
+    kind = sec.get("k_prior")
+    if (kind == "poisson") != ("k_mean" in sec):
+        raise _fail(cfg, "[prior] k_mean (> 0) goes with k_prior = 'poisson', and "
+                         "k_prior = 'poisson' needs k_mean")
+    if kind is None:
+        return None
+    return PoissonCount(sec["k_mean"], k_max) if kind == "poisson" else UniformCount(k_max)
 
 
 def sampler_options_from_config(cfg: Config, max_steps: int) -> Any:

@@ -20,10 +20,50 @@ from ..measurement import expected, is_plain, split_extra
 from ..model import Model
 from ._common import format_table
 
-__all__ = ["FIT_SECTIONS", "as_frames", "pearson_chi2", "extra_payload", "extra_text"]
+__all__ = ["FIT_SECTIONS", "as_frames", "frame_count", "read_data", "pearson_chi2",
+           "extra_payload", "extra_text"]
 
-#: Sections ``olsbayes fit`` accepts.
+#: Sections ``olsbayes fit`` (and select, crlb, simulate) accept.
 FIT_SECTIONS = ("sensor", "scene", "data", *MEASUREMENT_SECTIONS)
+
+
+def read_data(args: Any, cfg: Config, model: Model, truth: Any, command: str
+              ) -> tuple[np.ndarray, Any]:
+    """``(readings, truth)`` from --data FILE, else the [data] section.
+
+    The truth (a [scene]) is dropped for a --data file without a CONFIG (the
+    default scene is no truth for the user's readings).
+    """
+    from ..build import data_from_config
+    from ..config import read_readings
+    from ..errors import InputError
+
+    if args.data is not None:
+        data = read_readings(args.data, model.n_sensors, name="--data")
+        return data, (None if args.config is None else truth)
+    data = data_from_config(cfg, model, truth, rng=args.seed)
+    if data is None:
+        raise InputError(f"{command} needs readings: give --data FILE or a [data] section")
+    return data, truth
+
+
+def frame_count(cfg: Config, repeats: int | None = None) -> int | None:
+    """Frames F of a simulated measurement where ``[noise] frames``, else None.
+
+    F is ``repeats`` (--repeats), else ``[data] repeats``, else the length of a
+    per-frame ``[noise] exposure``, else 1; a per-frame exposure of another length
+    is an InputError.
+    """
+    from ..errors import InputError
+
+    if not frames_from_config(cfg):
+        return None
+    expo = np.size((cfg.get("noise") or {}).get("exposure", 1.0))
+    reps = repeats if repeats is not None else (cfg.get("data") or {}).get("repeats")
+    if expo > 1 and reps is not None and reps != expo:
+        raise InputError(f"frames: [noise] exposure gives {expo} frames but the repeats "
+                         f"(--repeats / [data] repeats) ask for {reps}; give one of them")
+    return reps if reps is not None else expo
 
 
 def as_frames(cfg: Config, model: Model, data: np.ndarray) -> tuple[np.ndarray, bool]:

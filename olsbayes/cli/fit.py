@@ -34,10 +34,9 @@ from typing import Any
 import numpy as np
 
 from .._provenance import draw_seed, file_sha256, provenance
-from ..build import data_from_config, model_from_config, scene_from_config
+from ..build import model_from_config, scene_from_config
 from ..build_measurement import prior_from_config, sampler_options_from_config
 from ..circular import wrap_angle
-from ..config import read_readings
 from ..errors import InputError
 from ..model import Model
 from ..scene import Scene
@@ -59,6 +58,7 @@ from ._measurement import (
     extra_text,
     is_general,
     pearson_chi2,
+    read_data,
 )
 
 __all__ = ["register", "run", "fit_payload", "fit_text", "batch_text", "load_fit_inputs",
@@ -95,14 +95,7 @@ def load_fit_inputs(args: argparse.Namespace) -> tuple[Model, Scene | None, np.n
     cfg = load_cli_config(args, FIT_SECTIONS, required=("sensor",))
     model = model_from_config(cfg)
     truth = scene_from_config(cfg, model) if "scene" in cfg else None
-    if args.data is not None:
-        data = read_readings(args.data, model.n_sensors, name="--data")
-        if "scene" in cfg and args.config is None:
-            truth = None  # the default scene is no truth for the user's readings
-    else:
-        data = data_from_config(cfg, model, truth, rng=args.seed)
-        if data is None:
-            raise InputError("fit needs readings: give --data FILE or a [data] section")
+    data, truth = read_data(args, cfg, model, truth, "fit")
     if args.n_sources is not None:
         k = args.n_sources
     elif truth is not None and truth.n_sources > 0:

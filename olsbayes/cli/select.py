@@ -2,7 +2,11 @@
 
 Readings come from --data FILE, else from the config's [data] section (a file or
 a simulation of [scene]).  Options come from the command line, else from an
-optional [select] section (k_max, method, i_max, maxcall, tie).  Prints, per
+optional [select] section (k_max, method, i_max, maxcall, tie).  The sections
+[noise], [calibration] and [background] give the model its noise and nuisance
+terms as for ``olsbayes fit`` (with ``[noise] frames = true`` the rows are frames
+of one scene, selected jointly); [prior] sets the intensity prior (intensity,
+i_max), an unknown sigma's prior and the prior on K (k_prior, k_mean).  Prints, per
 reading row, a table of K, log Z, its error, the estimator and p(K | data), the
 K sent to nested sampling and why.  Long steps (importance and nested sampling)
 show a status line on stderr (--quiet: none).  The ML points in the JSON (``params``) give
@@ -21,8 +25,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ..build import data_from_config, model_from_config, scene_from_config
-from ..config import Field, Section, read_readings, register_section
+from ..build import model_from_config, scene_from_config
+from ..build_measurement import count_prior_from_config, prior_from_config
+from ..config import Field, Section, register_section
 from ..errors import InputError
 from ..select import METHODS, DecisionOptions, NestedOptions, SelectOptions, select_k
 from ._common import (
@@ -34,6 +39,7 @@ from ._common import (
     emit,
     load_cli_config,
 )
+from ._measurement import FIT_SECTIONS, as_frames, read_data
 
 __all__ = ["register", "run"]
 
@@ -90,6 +96,17 @@ def _options(args: argparse.Namespace, cfg: Any) -> dict[str, Any]:
     return opts
 
 
+def _prior_args(cfg: Any, model: Any, row: Any, i_max: float | None, frames: bool
+                ) -> dict[str, Any]:
+    """``i_max=`` (no [prior] intensity settings) or ``priors=`` (K -> [prior]'s prior)."""
+    sec = cfg.get("prior") or {}
+    if not ({"i_max", "sigma_min", "sigma_max"} & set(sec)
+            or sec.get("intensity", "uniform") != "uniform"):
+        return {"i_max": i_max}
+    prior_from_config(cfg, model, 1, row, frames, i_max=i_max)  # bad [prior]: before work
+    return {"priors": lambda k: prior_from_config(cfg, model, k, row, frames, i_max=i_max)}
+
+
 def _in_unit(model: Any, result: dict[str, Any], unit: str) -> dict[str, Any]:
     """A selection's JSON with the angles of every candidate's ML point in ``unit``."""
     from .fit import in_unit
@@ -105,23 +122,19 @@ def run(args: argparse.Namespace) -> int:
 
     Prints text, or JSON with --json; returns the exit status 0.
     """
-    cfg = load_cli_config(args, sections=("sensor", "scene", "data", "select"),
-                          required=("sensor",))
+    cfg = load_cli_config(args, sections=(*FIT_SECTIONS, "select"), required=("sensor",))
     model = model_from_config(cfg)
     truth = scene_from_config(cfg, model) if "scene" in cfg else None
-    if args.data is not None:
-        data = read_readings(args.data, model.n_sensors, name="--data")
-        truth = None if args.config is None else truth
-    else:
-        data = data_from_config(cfg, model, truth, rng=args.seed)
-        if data is None:
-            raise InputError("select needs readings: give --data FILE or a [data] section")
-    rows = data.reshape(-1, model.n_sensors)
     opts = _options(args, cfg)
+    k_prior = count_prior_from_config(cfg, opts["k_max"])
+    data, truth = read_data(args, cfg, model, truth, "select")
+    data, frames = as_frames(cfg, model, data)
+    rows = [data] if frames else data.reshape(-1, model.n_sensors)
     settings = SelectOptions(nested=NestedOptions(maxcall=opts["maxcall"]),
                              decision=DecisionOptions(tie=opts["tie"]))
-    results = [select_k(model, row, opts["k_max"], i_max=opts["i_max"], method=opts["method"],
-                        options=settings, rng=args.seed, progress=not args.quiet)
+    results = [select_k(model, row, opts["k_max"], k_prior=k_prior, method=opts["method"],
+                        options=settings, rng=args.seed, progress=not args.quiet,
+                        frames=frames, **_prior_args(cfg, model, row, opts["i_max"], frames))
                for row in rows]
     unit = (cfg.get("scene") or {}).get("angle_unit", "rad")
     payload: dict[str, Any] = {"model": repr(model), "options": opts, "angle_unit": unit,

@@ -1,8 +1,13 @@
-"""Simulate noisy readings of a scene (Eq. 1 plus N(0, sigma^2) noise).
+"""Simulate noisy readings of a scene (Eq. 1 plus N(0, sigma^2) noise, or the [noise] model).
 
 Writes one row of N readings per measurement, as text a `fit` run (or a
-`[data] file = ...` entry) reads back.  The seed comes from --seed, else from
-[data] seed in CONFIG, else the built-in default seed.
+`[data] file = ...` entry) reads back.  The sections [noise], [calibration] and
+[background] apply as for ``olsbayes fit``: ``[noise] model = "poisson"`` writes
+counts (non-negative integers) of the given exposure, with the calibration's
+gains and offsets and the background's value; with ``[noise] frames = true`` the
+rows are F frames of the scene (F = --repeats, [data] repeats or one per
+exposure).  The seed comes from --seed, else from [data] seed in CONFIG, else the
+built-in default seed.
 
 Example:
   olsbayes simulate --seed 1 --repeats 5 --out readings.txt
@@ -30,6 +35,7 @@ from ._common import (
     output_file,
     write_output,
 )
+from ._measurement import FIT_SECTIONS, frame_count
 
 __all__ = ["register", "run", "readings_text", "DEFAULT_SEED"]
 
@@ -63,14 +69,15 @@ def run(args: argparse.Namespace) -> int:
 
     Prints text, or JSON with --json; returns the exit status 0.
     """
-    cfg = load_cli_config(args, required=("sensor", "scene"))
+    cfg = load_cli_config(args, FIT_SECTIONS, required=("sensor", "scene"))
     model = model_from_config(cfg)
     scene = scene_from_config(cfg, model)
     data_sec = cfg.get("data") or {}
     if "file" in data_sec:
         raise InputError("simulate makes readings; remove [data] file from the config")
     seed = args.seed if args.seed is not None else data_sec.get("seed", DEFAULT_SEED)
-    reps = args.repeats if args.repeats is not None else data_sec.get("repeats", 1)
+    n_frames = frame_count(cfg, args.repeats)
+    reps = n_frames or (args.repeats if args.repeats is not None else data_sec.get("repeats", 1))
     if not 1 <= reps <= 1_000_000:
         raise InputError(f"--repeats must be in [1, 1000000]; got {reps}")
     if reps * model.n_sensors > MAX_READINGS:
@@ -79,10 +86,11 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.out is not None:
         output_file(args.out, "--out")
-    readings = model.simulate(scene, rng=seed, size=reps)
+    readings = (model.simulate(scene, rng=seed, n_frames=n_frames) if n_frames
+                else model.simulate(scene, rng=seed, size=reps))
     header = (
         f"olsbayes simulate: {model!r}; {scene!r}; seed={seed}; "
-        f"{reps} row(s) of {model.n_sensors} readings"
+        f"{reps} row(s) of {model.n_sensors} readings" + (" (frames)" if n_frames else "")
     )
     if args.out is not None:
         write_output(args.out, readings_text(readings, header))

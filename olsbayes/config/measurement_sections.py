@@ -23,6 +23,8 @@
     i_max = 5.0
     sigma_min = 0.001        # gaussian-unknown: sigma ~ LogUniform(sigma_min, sigma_max)
     sigma_max = 1.0
+    k_prior = "poisson"      # select: prior on K, uniform (default) | poisson
+    k_mean = 1.0             # poisson: its mean (truncated to 0..k_max)
 
     [posterior]
     walkers = 32
@@ -86,13 +88,17 @@ register_section(Section(
 
 register_section(Section(
     name="prior",
-    doc="priors of the posterior: intensities and an unknown sigma",
+    doc="priors: intensities, an unknown sigma and (select) the number of sources",
     fields={
         "intensity": Field("str", default="uniform", choices=("uniform", "loguniform"),
                            doc="Uniform(0, i_max) or LogUniform(i_max / 1000, i_max)"),
         "i_max": Field("float", positive=True, doc="largest intensity (default from the data)"),
         "sigma_min": Field("float", positive=True, doc="gaussian-unknown: sigma prior's lower end"),
         "sigma_max": Field("float", positive=True, doc="gaussian-unknown: sigma prior's upper end"),
+        "k_prior": Field("str", choices=("uniform", "poisson"),
+                         doc="select: prior on K, uniform on 0..k_max or truncated Poisson"),
+        "k_mean": Field("float", positive=True, high=100.0,
+                        doc="k_prior = 'poisson': its mean"),
     },
 ))
 
