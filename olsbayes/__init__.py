@@ -10,6 +10,7 @@ from ._version import __version__
 from .bounds import CRLBResult, crlb, crlb_eq3, crlb_eq4
 from .circular import wrap_angle
 from .errors import (
+    AntipodalWarning,
     ConfigError,
     ConvergenceWarning,
     EvidenceWarning,
@@ -88,5 +89,6 @@ __all__ = [
     "EvidenceWarning",
     "NullSpaceWarning",
     "MultimodalWarning",
+    "AntipodalWarning",
     "PriorBoundWarning",
 ]

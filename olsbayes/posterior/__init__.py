@@ -9,6 +9,7 @@ ArviZ is used only through :mod:`olsbayes.posterior._arviz` (imported lazily).
 """
 
 from .audit import CRLBCheck, crlb_check, summary
+from .modes import ModeOptions, ModeReport
 from .options import MOVES, SamplerOptions
 from .report import ReportFiles, write_report
 from .result import PosteriorResult
@@ -18,6 +19,8 @@ __all__ = [
     "sample",
     "SamplerOptions",
     "MOVES",
+    "ModeOptions",
+    "ModeReport",
     "PosteriorResult",
     "summary",
     "crlb_check",
