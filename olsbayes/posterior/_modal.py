@@ -80,9 +80,8 @@ def _run_modes(logpost: LogPosterior, walkers: list[np.ndarray], options, gen,
     return samplers, converged
 
 
-def _kept(sampler, logpost: LogPosterior, options) -> tuple[np.ndarray, np.ndarray]:
+def _kept(sampler, tau: np.ndarray, options) -> tuple[np.ndarray, np.ndarray]:
     """A run's kept draws (n, P) in sampler coordinates and their log densities (n,)."""
-    tau = np.asarray(sampler.get_autocorr_time(tol=0), dtype=float)
     keep = _kept_steps(tau, sampler.iteration, options)[0]
     z = sampler.get_chain()[keep]
     p = z.shape[-1]
@@ -99,8 +98,9 @@ def _pool(samplers: list, logpost: LogPosterior, modes: np.ndarray, options, gen
     prior = logpost.prior
     model = logpost.model
     kept, rows = [], []
+    taus = np.array([np.asarray(s.get_autocorr_time(tol=0), dtype=float) for s in samplers])
     for m, sampler in enumerate(samplers):
-        z, lp = _kept(sampler, logpost, options)
+        z, lp = _kept(sampler, taus[m], options)
         cell = nearest_mode(model, prior, logpost.to_params(z), modes) == m
         log_z, se = mode_evidence(logpost, z, options.modes.evidence_draws, gen)
         kept.append((z[cell], lp[cell]))
@@ -121,7 +121,7 @@ def _pool(samplers: list, logpost: LogPosterior, modes: np.ndarray, options, gen
         sel = label == m
         pick = ((np.arange(sel.sum()) + 0.5) * len(z) / max(sel.sum(), 1)).astype(int)
         chain[sel], log_prob[sel] = z[pick], lp[pick]
-    tau = np.max([s.get_autocorr_time(tol=0) for s in samplers], axis=0)
+    tau = np.max(taus, axis=0)
     acc = np.array([s.acceptance_fraction for s in samplers])  # (M, W)
     main = np.array([np.bincount(label[:, j], minlength=len(samplers)).argmax()
                      for j in range(n_walkers)])

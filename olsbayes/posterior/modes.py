@@ -182,14 +182,13 @@ def _distinct(model, x: np.ndarray, kept: list[np.ndarray], std: np.ndarray) -> 
     from ..exchange import estimation_errors
     from ..ml.rivals import DISTINCT_STD
 
+    if not kept:
+        return True
     w = model.n_loc + 1
     loc = np.ones(x.size, dtype=bool)
     loc[w - 1 :: w] = False
-    for y in kept:
-        err = estimation_errors(model, x, y)
-        if not np.any(np.abs(err[loc]) > DISTINCT_STD * std[loc]):
-            return False
-    return True
+    err = estimation_errors(model, x[None, :], np.array(kept))  # (M, P)
+    return bool(np.all(np.any(np.abs(err[:, loc]) > DISTINCT_STD * std[loc], axis=-1)))
 
 
 def find_modes(model, data: np.ndarray, prior, centre: np.ndarray, options: ModeOptions
@@ -205,8 +204,9 @@ def find_modes(model, data: np.ndarray, prior, centre: np.ndarray, options: Mode
     cov = bound_covariance(model.fisher(centre))[0]
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     std = np.where(np.isfinite(std) & (std > 0), std, np.inf)
-    kept, frontier = [np.asarray(centre, dtype=float)], [np.asarray(centre, dtype=float)]
-    for _ in range(options.rounds):
+    kept: list[np.ndarray] = []
+    frontier = [np.asarray(centre, dtype=float)]  # refined in the first round (the ML
+    for _ in range(options.rounds):               # point stays where it is)
         starts = np.concatenate([mode_candidates(model, x, options) for x in frontier])
         optima = _refine(model, data, starts)
         lp = _log_post(model, data, prior, optima)
