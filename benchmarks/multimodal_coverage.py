@@ -18,6 +18,7 @@ Usage::
 
     python benchmarks/multimodal_coverage.py            # 64 noise draws
     python benchmarks/multimodal_coverage.py --quick    # 6 noise draws
+    python benchmarks/multimodal_coverage.py --steps 600  # fixed-length ensembles
 """
 
 from __future__ import annotations
@@ -46,14 +47,16 @@ def covered(result, model, truth: np.ndarray) -> np.ndarray:
     return (lo <= t) & (t <= hi)
 
 
-def run(multimodal: bool | None, data: np.ndarray, model, seed: int) -> tuple[np.ndarray, float,
-                                                                               int]:
+def run(multimodal: bool | None, data: np.ndarray, model, seed: int, steps: int | None
+        ) -> tuple[np.ndarray, float, int]:
     """(covered (P,), CPU seconds, modes) of one posterior."""
+    opts = (ob.SamplerOptions(multimodal=multimodal) if steps is None else
+            ob.SamplerOptions(multimodal=multimodal, n_steps=steps, rhat_max=None))
     t0 = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = ob.sample_posterior(model, data, 4, rng=1000 + seed, progress=False,
-                                  options=ob.SamplerOptions(multimodal=multimodal))
+                                  options=opts)
     cpu = time.process_time() - t0
     return covered(res, model, TRUTH), cpu, 1 if res.modes is None else res.modes.n_modes
 
@@ -74,6 +77,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--n", type=int, default=64, help="noise draws (default 64)")
     parser.add_argument("--quick", action="store_true", help="6 noise draws")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="a fixed number of steps per ensemble (default: run until "
+                             "the default convergence criteria hold)")
     args = parser.parse_args()
     n = 6 if args.quick else args.n
     model = ob.Model(ob.Ring(30), sigma=SIGMA)
@@ -81,14 +87,15 @@ def main() -> None:
     for seed in range(n):
         data = model.simulate(TRUTH, rng=seed)
         for path, (cov, cpu, modes) in out.items():
-            c, t, m = run(path, data, model, seed)
+            c, t, m = run(path, data, model, seed, args.steps)
             cov.append(c)
             cpu.append(t)
             modes.append(m)
         print(f"draw {seed}: single {out[False][0][-1].mean():.2f} "
               f"({out[False][1][-1]:.1f} s), automatic {out[None][0][-1].mean():.2f} "
               f"({out[None][1][-1]:.1f} s, {out[None][2][-1]} modes)", flush=True)
-    print(f"90 % intervals, near-antipodal 4-source ring of 30, sigma = {SIGMA:g}")
+    steps = "default run length" if args.steps is None else f"{args.steps} steps per ensemble"
+    print(f"90 % intervals, near-antipodal 4-source ring of 30, sigma = {SIGMA:g}, {steps}")
     report("single ensemble", np.array(out[False][0]), out[False][1], out[False][2])
     report("automatic (modes)", np.array(out[None][0]), out[None][1], out[None][2])
 

@@ -1,5 +1,7 @@
 """Near-antipodal pairs, the mode search and the multimodal sampler."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -150,3 +152,36 @@ def test_sampler_options_and_start_validated(scene4):
     with pytest.raises(InputError, match="multimodal"):
         sample(model, data, 4, start="prior", progress=False,
                options=SamplerOptions(multimodal=True))
+
+
+def test_crlb_alarm_reruns_with_the_modes(scene4, monkeypatch):
+    """A default run narrower than the CRLB at high SNR is rerun over the modes found."""
+    import olsbayes.posterior._modal as modal
+    import olsbayes.posterior.sampler as sampler
+
+    model, data = scene4
+    monkeypatch.setattr(modal, "trigger_reason", lambda *args: "")  # no trigger before the run
+    monkeypatch.setattr(sampler, "narrower_than_crlb",
+                        lambda result: [("theta[0]", 0.5, 1000.0)])
+    with pytest.warns(MultimodalWarning, match="far below the CRLB"):
+        res = sample(model, data, 4, rng=3, progress=False,
+                     options=SamplerOptions(n_steps=150, rhat_max=None))
+    assert res.modes.n_modes == 4 and "CRLB" in res.modes.reason
+    off = SamplerOptions(n_steps=150, rhat_max=None, modes=ModeOptions(crlb_alarm=False))
+    with pytest.warns(Warning, match="far below the CRLB"):
+        assert sample(model, data, 4, rng=3, progress=False, options=off).modes is None
+
+
+def test_ml_fit_warns_about_a_mirrored_optimum(scene4):
+    """fit_ml: the mirrored configuration of a near-antipodal pair is a distinct optimum
+    within 3 of the log-likelihood (AntipodalWarning); an exactly antipodal pair is not."""
+    from olsbayes import fit_ml
+
+    model, data = scene4
+    with pytest.warns(AntipodalWarning, match="mirrored"):
+        fit_ml(model, data, 4)
+    fig3 = Model(Ring(30), sigma=1e-2)
+    fig3_data = fig3.simulate(np.array([0.5, 1.0, 0.5 + np.pi, 0.2]), rng=4, size=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", AntipodalWarning)
+        fit_ml(fig3, fig3_data, 2)
