@@ -4,6 +4,8 @@
 >>> res = sample(model, data, n_sources=2, rng=1)                  # doctest: +SKIP
 >>> res.summary(); res.crlb_check()                                # doctest: +SKIP
 >>> sample(model, data, 2, options=SamplerOptions(n_steps=2000), rng=1)  # doctest: +SKIP
+>>> res = sample(model, data, 4, options=SamplerOptions(multimodal=True))  # doctest: +SKIP
+>>> res.modes                          # modes found and their weights  # doctest: +SKIP
 
 ArviZ is used only through :mod:`olsbayes.posterior._arviz` (imported lazily).
 """

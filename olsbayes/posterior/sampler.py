@@ -1,4 +1,8 @@
-"""Posterior sampling with emcee: a vectorised ensemble seeded at the ML point."""
+"""Posterior sampling with emcee: a vectorised ensemble seeded at the ML point.
+
+Or one ensemble per mode when the posterior has several
+(:mod:`olsbayes.posterior.multimodal`).
+"""
 
 from __future__ import annotations
 
@@ -132,8 +136,11 @@ def sample(
         prior draws (not recommended for K >= 2: such walkers can stay stuck in
         poor local modes far beyond the default step limit).
     options : SamplerOptions, optional
-        Number of walkers, run length and stopping rule, burn-in, thinning, moves;
-        default ``SamplerOptions()``.
+        Number of walkers, run length and stopping rule, burn-in, thinning, moves,
+        and whether to use the multimodal sampler (``multimodal``: by default
+        chosen automatically when the ML fit or the run shows signs of several
+        modes, see :mod:`olsbayes.posterior.multimodal`); default
+        ``SamplerOptions()``.
     rng : Generator or int, optional
         The same rng gives identical chains.  None: a seed is drawn from the
         system's entropy and recorded (``result.seed``), so the run can be repeated.
@@ -145,7 +152,10 @@ def sample(
     PosteriorResult
         Sources labelled as in the starting point (the ML estimate's canonical
         order by default).  A :class:`~olsbayes.errors.PriorBoundWarning` is issued
-        when a posterior piles up at a prior bound (``result.at_bound``).
+        when a posterior piles up at a prior bound (``result.at_bound``).  When the
+        multimodal sampler ran, ``result.modes`` lists the modes and their weights,
+        and a :class:`~olsbayes.errors.MultimodalWarning` says why it was chosen
+        (unless requested).
     """
     data, k = _check_scene(model, data, n_sources)
     prior = _check_prior(model, k, priors, data)
@@ -161,7 +171,9 @@ def sample(
     gen_ml, gen_ball, gen_mc, gen_prior = as_rng(rng).spawn(4)
     record = provenance(seed=rng, data=data)
     if start is None:
-        start = fit_ml(model, data, k, rng=gen_ml)
+        with warnings.catch_warnings():  # the posterior reports near-antipodal pairs itself
+            warnings.simplefilter("ignore", AntipodalWarning)
+            start = fit_ml(model, data, k, rng=gen_ml)
     plan = mode_plan(model, data, prior, start, options)
     run = _Run(model, data, prior, options, n_walkers, (gen_ball, gen_mc, gen_prior), record,
                bool(progress))
