@@ -11,6 +11,7 @@ from .bounds import CRLBResult, crlb, crlb_eq3, crlb_eq4
 from .calibration import Calibration, calibrate
 from .circular import wrap_angle
 from .errors import (
+    AntipodalWarning,
     ConfigError,
     ConvergenceWarning,
     EvidenceWarning,
@@ -99,5 +100,6 @@ __all__ = [
     "EvidenceWarning",
     "NullSpaceWarning",
     "MultimodalWarning",
+    "AntipodalWarning",
     "PriorBoundWarning",
 ]

@@ -19,6 +19,7 @@ __all__ = [
     "EvidenceWarning",
     "NullSpaceWarning",
     "MultimodalWarning",
+    "AntipodalWarning",
     "PriorBoundWarning",
 ]
 
@@ -63,6 +64,14 @@ class MultimodalWarning(OlsBayesWarning):
     """A distinct local optimum fits almost as well as the estimate.
 
     The likelihood is multimodal there and Fisher (CRLB) errors understate the uncertainty.
+    """
+
+
+class AntipodalWarning(MultimodalWarning):
+    """Two ring sources are nearly antipodal: mirrored configurations fit almost as well.
+
+    See :mod:`olsbayes.antipodal`: the readings barely constrain the pair's offset
+    from antipodal, and a sampler started in one configuration reports that one only.
     """
 
 

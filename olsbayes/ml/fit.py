@@ -11,7 +11,7 @@ import numpy as np
 from .._budget import check_memory
 from .._validation import as_rng
 from ..bounds import SINGULAR_RTOL, bound_covariance
-from ..errors import ConvergenceWarning, InputError, MultimodalWarning
+from ..errors import AntipodalWarning, ConvergenceWarning, InputError, MultimodalWarning
 from ..measurement import is_plain
 from ..model import Model
 from .atoms import cached_default_grid, check_atom_memory, check_grid, default_grid_size
@@ -19,6 +19,7 @@ from .exact import check_exact, enumerate_optimum
 from .fast import FastOptions, fit_fast
 from .honesty import warn_honesty
 from .inputs import check_fit_inputs
+from .mirror import mirror_gap
 from .multistart import MultistartOptions, fit_multistart
 from .outcome import FitOutcome
 from .result import MLResult
@@ -212,6 +213,7 @@ def fit_ml(
     if warn:
         _warn(method, gap, conv)
         warn_honesty(model, x, ll, cov, method)
+        _warn_mirror(model, s, x, ll, cov, method)
     sel = (lambda a: a) if batch else (lambda a: a[0])
     return MLResult(params=sel(x), log_likelihood=sel(ll), converged=sel(conv),
                     n_evaluations=sel(nev), cov=sel(cov), rival_gap=sel(gap),
@@ -269,5 +271,24 @@ def _warn(method: str, gap: np.ndarray, converged: np.ndarray) -> None:
             f"{bad} of {converged.size} ML fit(s) ({method}) did not meet the "
             "convergence criterion of the local optimiser; see MLResult.converged",
             ConvergenceWarning,
+            stacklevel=3,
+        )
+
+
+def _warn_mirror(model: Model, s: np.ndarray, x: np.ndarray, ll: np.ndarray, cov: np.ndarray,
+                 method: str) -> None:
+    """AntipodalWarning when a mirrored near-antipodal optimum fits within RIVAL_WARN."""
+    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    gap = mirror_gap(model, s, x, ll, std)
+    if np.any(gap < RIVAL_WARN):
+        bad = int(np.sum(gap < RIVAL_WARN))
+        warnings.warn(
+            f"{bad} of {gap.size} ML fit(s) ({method}) have a pair of sources near "
+            f"antipodal whose mirrored configuration (each source at the antipode of the "
+            f"other) is a distinct optimum within {RIVAL_WARN:g} of the log-likelihood: the "
+            "readings barely tell the two apart and the Fisher covariance describes one of "
+            "them; see olsbayes.antipodal, or sample the posterior "
+            "(olsbayes.sample_posterior samples every mode)",
+            AntipodalWarning,
             stacklevel=3,
         )

@@ -10,6 +10,7 @@ import numpy as np
 
 from .._validation import integer, positive_float
 from ..errors import InputError
+from .modes import ModeOptions
 
 __all__ = ["SamplerOptions", "MOVES", "emcee_moves"]
 
@@ -99,6 +100,18 @@ class SamplerOptions:
         exchangeable draws (e.g. to check them against the prior).
     use_likelihood : bool
         False samples the prior (a check of the sampler itself).
+    multimodal : bool or None
+        The multimodal sampler (:mod:`olsbayes.posterior.multimodal`: one
+        ensemble per mode, modes weighted by their evidence, ``result.modes``):
+        True always, False never (a near-antipodal ring pair then warns
+        :class:`~olsbayes.errors.AntipodalWarning`), None (default) when the
+        ML fit or the default run shows signs of several modes and the mode
+        search finds them -- a rival ML optimum, a near-antipodal ring pair, a
+        near-singular Fisher matrix, a posterior sd far below the CRLB -- with a
+        :class:`~olsbayes.errors.MultimodalWarning` saying so.  Needs a start
+        point (None, an MLResult or a point).
+    modes : ModeOptions
+        Settings of the mode search and of the evidence weights.
     """
 
     n_walkers: int | None = None
@@ -113,6 +126,8 @@ class SamplerOptions:
     vectorize: bool = True
     relabel_sources: bool = True
     use_likelihood: bool = True
+    multimodal: bool | None = None
+    modes: ModeOptions = ModeOptions()
 
     def __post_init__(self) -> None:
         checked = {
@@ -131,7 +146,12 @@ class SamplerOptions:
             "vectorize": _flag("vectorize", self.vectorize),
             "relabel_sources": _flag("relabel_sources", self.relabel_sources),
             "use_likelihood": _flag("use_likelihood", self.use_likelihood),
+            "multimodal": None if self.multimodal is None else _flag("multimodal",
+                                                                     self.multimodal),
         }
+        if not isinstance(self.modes, ModeOptions):
+            raise InputError(f"modes must be an olsbayes.posterior.ModeOptions; got "
+                             f"{type(self.modes).__name__}")
         for name, value in checked.items():
             object.__setattr__(self, name, value)
         if self.n_burn is not None and self.n_burn >= self.step_limit:

@@ -14,6 +14,7 @@ from ..priors import ScenePrior
 from ._arviz import from_netcdf, posterior_array, to_netcdf, wrap_periodic
 from .audit import CRLBCheck, crlb_check, summary
 from .checks import ModelCheck, model_check
+from .modes import ModeReport
 
 __all__ = ["PosteriorResult"]
 
@@ -82,6 +83,9 @@ class PosteriorResult:
     at_bound : tuple of str
         Parameters whose posterior piles up at a bound of their prior (a
         :class:`~olsbayes.errors.PriorBoundWarning` was issued).
+    modes : ModeReport or None
+        The modes the multimodal sampler found and their weights
+        (:mod:`olsbayes.posterior.multimodal`); None for a single ensemble.
     """
 
     idata: object
@@ -104,6 +108,7 @@ class PosteriorResult:
     seed: int | None = None
     provenance: Mapping = field(default_factory=dict)
     at_bound: tuple[str, ...] = ()
+    modes: ModeReport | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "names", tuple(self.names))
@@ -187,7 +192,8 @@ class PosteriorResult:
         w, d, _ = self.samples.shape
         return (
             f"PosteriorResult(K={self.n_sources}, walkers={w}, draws={d}, steps={self.n_steps}, "
-            f"n_burn={self.n_burn}, converged={self.converged}, tau_max={np.max(self.tau):.1f})"
+            f"n_burn={self.n_burn}, converged={self.converged}, tau_max={np.max(self.tau):.1f}"
+            + ("" if self.modes is None else f", modes={self.modes.n_modes}") + ")"
         )
 
 
@@ -200,7 +206,8 @@ def _stamp(result: PosteriorResult) -> None:
     from .._store import encode
 
     arrays: dict[str, np.ndarray] = {}
-    tree = {name: encode(getattr(result, name), arrays, name) for name in _STORED}
+    names = _STORED if result.modes is None else _STORED + ("modes",)
+    tree = {name: encode(getattr(result, name), arrays, name) for name in names}
     const = result.idata.constant_data
     for name, arr in arrays.items():
         if name in const and np.array_equal(const[name].values, arr, equal_nan=True):

@@ -1,4 +1,8 @@
-"""Posterior sampling with emcee: a vectorised ensemble seeded at the ML point."""
+"""Posterior sampling with emcee: a vectorised ensemble seeded at the ML point.
+
+Or one ensemble per mode when the posterior has several
+(:mod:`olsbayes.posterior.multimodal`).
+"""
 
 from __future__ import annotations
 
@@ -11,20 +15,32 @@ import numpy as np
 from .._budget import check_memory
 from .._provenance import draw_seed, provenance, seed_of
 from .._validation import as_rng, integer
-from ..errors import ConvergenceWarning, InputError, PriorBoundWarning
+from ..antipodal import antipodal_pairs
+from ..errors import (
+    AntipodalWarning,
+    ConvergenceWarning,
+    InputError,
+    MultimodalWarning,
+    PriorBoundWarning,
+)
+from ..measurement import is_plain
+from ..ml import MLResult, fit_ml
 from ..model import Model
 from ..priors import ScenePrior, default_priors
 from ._assemble import MAX_STORED_DRAWS, assemble
 from ._checkpoint import ChainCheckpoint, problem_key
 from ._general import check_prior_extras
 from ._logpost import LogPosterior, cut_shift
+from ._modal import check_multimodal_start, mode_plan, sample_modes
 from ._run import make_sampler, run_ensemble
 from ._start import check_start, initial_walkers
 from .audit import narrower_than_crlb
+from .modes import find_modes
+from .multimodal import model_point
 from .options import SamplerOptions
 from .result import PosteriorResult
 
-__all__ = ["sample"]
+__all__ = ["sample", "start_coordinates"]
 
 
 def _check_prior(model: Model, k: int, priors: object, data: np.ndarray,
@@ -72,7 +88,7 @@ def _check_memory(n_walkers: int, n_params: int, n_sensors: int, steps: int) -> 
                  f"({n_sensors} readings)", nbytes)
 
 
-def _start_coordinates(logpost: LogPosterior, walkers: np.ndarray) -> np.ndarray:
+def start_coordinates(logpost: LogPosterior, walkers: np.ndarray) -> np.ndarray:
     """The walkers (W, P) in the sampler's coordinates.
 
     Refused if some have zero posterior density or they are linearly dependent (emcee
@@ -130,8 +146,12 @@ def sample(
         prior draws (not recommended for K >= 2: such walkers can stay stuck in
         poor local modes far beyond the default step limit).
     options : SamplerOptions, optional
-        Number of walkers, run length and stopping rule, burn-in, thinning, moves;
-        default ``SamplerOptions()``.
+        Number of walkers, run length and stopping rule, burn-in, thinning, moves,
+        and whether to use the multimodal sampler (``multimodal``: by default
+        chosen automatically when the ML fit or the run shows signs of several
+        modes, see :mod:`olsbayes.posterior.multimodal`; one ensemble for frames,
+        other noise models or nuisance terms, and with a ``checkpoint``); default
+        ``SamplerOptions()``.
     rng : Generator or int, optional
         The same rng gives identical chains.  None: a seed is drawn from the
         system's entropy and recorded (``result.seed``), so the run can be repeated.
@@ -157,15 +177,25 @@ def sample(
     PosteriorResult
         Sources labelled as in the starting point (the ML estimate's canonical
         order by default).  A :class:`~olsbayes.errors.PriorBoundWarning` is issued
-        when a posterior piles up at a prior bound (``result.at_bound``).
+        when a posterior piles up at a prior bound (``result.at_bound``).  When the
+        multimodal sampler ran, ``result.modes`` lists the modes and their weights,
+        and a :class:`~olsbayes.errors.MultimodalWarning` says why it was chosen
+        (unless requested).
     """
     if not isinstance(frames, (bool, np.bool_)):
         raise InputError(f"frames must be True or False; got {frames!r}")
-    data, k = _check_scene(model, data, n_sources, bool(frames))
-    prior = _check_prior(model, k, priors, data, bool(frames))
+    frames = bool(frames)
+    data, k = _check_scene(model, data, n_sources, frames)
+    prior = _check_prior(model, k, priors, data, frames)
     options, n_walkers = _check_options(options, prior.n_params)
     _check_memory(n_walkers, prior.n_params, model.n_sensors, options.step_limit)
     start = check_start(model, prior, start, n_walkers)
+    check_multimodal_start(options, start)
+    single = frames or not is_plain(model) or checkpoint is not None
+    if options.multimodal and single:
+        raise InputError("SamplerOptions(multimodal=True) samples one vector of readings of the "
+                         "Gaussian model without nuisance terms and without a checkpoint; "
+                         "use multimodal=None or False here")
     if not isinstance(progress, (bool, np.bool_)):
         raise InputError(f"progress must be True or False; got {progress!r}")
     ckpt = None
@@ -179,28 +209,77 @@ def sample(
     seed = seed_of(rng)
     gen_ml, gen_ball, gen_mc, gen_prior = as_rng(rng).spawn(4)
     record = provenance(seed=rng, data=data)
-
-    walkers, centre = initial_walkers(model, data, prior, start, n_walkers, gen_ml, gen_ball,
-                                      bool(frames))
-    logpost = LogPosterior(model, data, prior, cut_shift(prior, walkers),
-                           options.use_likelihood, bool(frames))
-    z0 = _start_coordinates(logpost, walkers)
-    sampler = make_sampler(logpost, n_walkers, options, gen_mc)
+    if start is None and not single:
+        with warnings.catch_warnings():  # the posterior reports near-antipodal pairs itself
+            warnings.simplefilter("ignore", AntipodalWarning)
+            start = fit_ml(model, data, k, rng=gen_ml)
+    plan = None if single else mode_plan(model, data, prior, start, options)
+    run = _Run(model, data, prior, options, n_walkers, (gen_ball, gen_mc, gen_prior), record,
+               bool(progress), (frames, single, ckpt, seed))
     t0 = time.perf_counter()
-    converged = run_ensemble(sampler, z0, logpost, options, bool(progress), ckpt, seed)
-    elapsed = time.perf_counter() - t0
-    fields = assemble(model, data, logpost, sampler, centre, options, gen_prior, record)
+    if plan is None:
+        walkers, centre = initial_walkers(model, data, prior, start, n_walkers, gen_ml, gen_ball,
+                                          frames)
+        fields, converged, calls = run.one(walkers, centre)
+    else:
+        centre = _centre(model, prior, data, start)
+        fields, converged, calls = run.modes(plan, centre)
+    result = _finish(fields, converged, calls, time.perf_counter() - t0, seed, record, options)
+    if options.use_likelihood:
+        result = _audit(run, result, plan, centre, t0, seed)
+    return result
+
+
+def _centre(model: Model, prior: ScenePrior, data: np.ndarray, start: object) -> np.ndarray:
+    """The full start point (P,) of an MLResult or a point start (labels of the result)."""
+    if isinstance(start, MLResult):
+        return model_point(model, prior, data, np.asarray(start.params, dtype=float))
+    return np.asarray(start, dtype=float).copy()
+
+
+class _Run:
+    """The settings of one call of :func:`sample`, and its two ways to sample."""
+
+    def __init__(self, model, data, prior, options, n_walkers, gens, record, progress, how):
+        self.model, self.data, self.prior, self.options = model, data, prior, options
+        self.n_walkers, self.gens, self.record, self.progress = n_walkers, gens, record, progress
+        # frames; one ensemble only (frames, other noise models, a checkpoint); its checkpoint
+        self.frames, self.single, self.ckpt, self.seed = how
+
+    def one(self, walkers: np.ndarray, centre: np.ndarray | None) -> tuple[dict, bool, int]:
+        """One ensemble from ``walkers`` (W, P): (result fields, converged, calls)."""
+        options = self.options
+        _, gen_mc, gen_prior = self.gens
+        logpost = LogPosterior(self.model, self.data, self.prior, cut_shift(self.prior, walkers),
+                               options.use_likelihood, self.frames)
+        z0 = start_coordinates(logpost, walkers)
+        sampler = make_sampler(logpost, self.n_walkers, options, gen_mc)
+        converged = run_ensemble(sampler, z0, logpost, options, self.progress, self.ckpt,
+                                 self.seed)
+        fields = assemble(self.model, self.data, logpost, sampler, centre, options, gen_prior,
+                          self.record)
+        if options.n_steps is not None:
+            converged = bool(options.n_steps >= options.tau_multiple * np.max(fields["tau"]))
+        return fields, converged, logpost.n_calls
+
+    def modes(self, plan: tuple, centre: np.ndarray) -> tuple[dict, bool, int]:
+        """The multimodal sampler over ``plan`` (:func:`~._modal.sample_modes`)."""
+        return sample_modes(self.model, self.data, self.prior, plan, centre, self.n_walkers,
+                            self.options, self.gens, self.record, self.progress)
+
+
+def _finish(fields: dict, converged: bool, calls: int, elapsed: float, seed, record,
+            options: SamplerOptions) -> PosteriorResult:
+    """The result, with the convergence and prior-bound warnings."""
     max_tau = float(np.max(fields["tau"]))
-    if options.n_steps is not None:
-        converged = bool(options.n_steps >= options.tau_multiple * max_tau)
-    elif not converged:
+    if options.n_steps is None and not converged:
         warnings.warn(
             f"emcee stopped at max_steps={options.max_steps} before "
             f"{options.tau_multiple:g} autocorrelation times (max tau = {max_tau:.1f} steps) "
             f"with R-hat < {options.rhat_max}: run longer or check the start (a multimodal "
             "posterior?)",
             ConvergenceWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
     if fields["at_bound"]:
         warnings.warn(
@@ -208,14 +287,67 @@ def sample(
             "prior: the prior, not the data, limits it; widen the prior (e.g. a larger "
             "i_max) or leave priors=None for bounds derived from the data",
             PriorBoundWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
-    result = PosteriorResult(converged=converged, elapsed=elapsed,
-                             n_evaluations=logpost.n_calls, seed=seed, provenance=record,
-                             **fields)
-    if options.use_likelihood:
+    return PosteriorResult(converged=converged, elapsed=elapsed, n_evaluations=calls, seed=seed,
+                           provenance=record, **fields)
+
+
+def _audit(run: _Run, result: PosteriorResult, plan, centre, t0: float, seed
+           ) -> PosteriorResult:
+    """Warn about what the run may have missed; rerun multimodal on a CRLB alarm.
+
+    The automatic choice (``multimodal=None``) reruns with the multimodal sampler
+    when the posterior sd is far below the CRLB at high SNR and the mode search
+    finds several modes; otherwise the alarm is a ConvergenceWarning.
+    """
+    options = run.options
+    if plan is None and centre is not None and not run.single:
+        alarm = narrower_than_crlb(result)
+        if alarm and options.multimodal is None and options.modes.crlb_alarm:
+            what = ", ".join(f"{name} {ratio:.2f}x" for name, ratio, _ in alarm)
+            p_model = run.model.n_params(run.prior.n_sources)
+            modes, lp = find_modes(run.model, run.data, run.prior, centre[:p_model],
+                                   options.modes)
+            if modes.shape[0] > 1:
+                plan = (modes, lp, f"posterior sd far below the CRLB ({what})")
+                fields, converged, calls = run.modes(plan, centre)
+                result = _finish(fields, converged, calls, time.perf_counter() - t0, seed,
+                                 run.record, options)
+    if plan is None:
         _warn_narrow(result)
+        if options.multimodal is False and centre is not None and not run.single:
+            p_model = run.model.n_params(run.prior.n_sources)
+            _warn_antipodal(run.model, centre[:p_model], options)
+    elif plan[2] != "requested":
+        m = result.modes
+        warnings.warn(
+            f"the multimodal sampler was chosen ({plan[2]}): {m.n_modes} modes, weights "
+            f"{np.array2string(m.weight, precision=3)}, each sampled and weighted by its "
+            "evidence; see PosteriorResult.modes",
+            MultimodalWarning,
+            stacklevel=3,
+        )
     return result
+
+
+def _warn_antipodal(model: Model, centre: np.ndarray, options: SamplerOptions) -> None:
+    """AntipodalWarning for near-antipodal ring pairs at ``centre`` (P_model,).
+
+    Issued when the multimodal sampler is switched off (``multimodal=False``):
+    see :mod:`olsbayes.antipodal` for why such pairs leave mirrored optima.
+    """
+    pairs = antipodal_pairs(model, centre, within=options.modes.antipodal_spacings)
+    if pairs:
+        what = ", ".join(f"({i}, {j}) {off:+.2f}" for i, j, off in pairs)
+        warnings.warn(
+            f"source pair(s) {what} sensor spacings from antipodal: mirrored "
+            "configurations fit (almost) as well, and one ensemble samples one of them; "
+            "leave SamplerOptions(multimodal=None) to sample every mode "
+            "(see olsbayes.antipodal)",
+            AntipodalWarning,
+            stacklevel=4,
+        )
 
 
 def _warn_narrow(result: PosteriorResult) -> None:
@@ -229,7 +361,7 @@ def _warn_narrow(result: PosteriorResult) -> None:
             "(a multimodal or poorly mixed run): run longer or from another start, and see "
             "PosteriorResult.crlb_check()",
             ConvergenceWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
 
 

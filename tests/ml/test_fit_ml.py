@@ -301,7 +301,7 @@ def test_exact_method_is_the_global_optimum_of_close_pairs():
     for sep in (0.4, 0.8, 1.2):
         scene = ob.Scene(directions=[0.3, 0.3 + sep * 2 * np.pi / 30], intensities=[1.0, 0.8])
         data = model.simulate(scene, rng=rng, size=6)
-        ex = fit_ml(model, data, 2, method="exact")
+        ex = fit_ml(model, data, 2, method="exact", warn=False)
         fast = fit_ml(model, data, 2, warn=False)  # close pairs: rival modes
         assert np.all(ex.log_likelihood >= fast.log_likelihood - 1e-9)
         polished = ob.ml.refine_batch(model, data, ex.params)
@@ -399,12 +399,12 @@ def test_rival_gap_reports_rival_modes_and_warns():
     truth = model.canonical(model.pack(scene))
     std = ob.crlb(model, scene.sorted()).std
     data = model.simulate(scene, rng=np.random.default_rng(8), size=40)
-    with pytest.warns(ob.MultimodalWarning, match="distinct local optimum"):
+    with pytest.warns(ob.MultimodalWarning, match="distinct (local )?optimum"):
         res = fit_ml(model, data, 4)
     far = np.any(np.abs(ob.exchange.estimation_errors(model, res.params, truth)) > 5 * std, axis=1)
     assert far.any() and np.all(res.rival_gap[far] < 3.0)
     assert np.all(res.rival_gap >= 0)
-    assert np.all(np.isnan(fit_ml(model, data[:2], 4, method="exact").rival_gap))
+    assert np.all(np.isnan(fit_ml(model, data[:2], 4, method="exact", warn=False).rival_gap))
     multi = fit_ml(model, data[:1], 4, method="multistart", rng=3,
                    options=MultistartOptions(n_starts=8), warn=False)
     assert not np.isnan(multi.rival_gap)
@@ -421,18 +421,19 @@ def test_fast_escalates_close_and_lopsided_ring_pairs_to_the_exact_optimum():
         scene = ob.Scene(directions=[-1.0, -1.0 + sep * h], intensities=[1.0, i2])
         data = model.simulate(scene, rng=rng, size=8)
         fast = fit_ml(model, data, 2, warn=False)
-        ex = fit_ml(model, data, 2, method="exact")
+        ex = fit_ml(model, data, 2, method="exact", warn=False)
         np.testing.assert_allclose(fast.log_likelihood, ex.log_likelihood, rtol=0, atol=1e-6)
     for sep in (0.5, 1.0):  # K = 3: a close pair and a third source across the ring
         scene = ob.Scene(directions=[0.2, 0.2 + sep * h, 0.2 + 2.8], intensities=[1.0, 0.7, 0.8])
         data = model.simulate(scene, rng=rng, size=6)
         np.testing.assert_allclose(fit_ml(model, data, 3, warn=False).log_likelihood,
-                                   fit_ml(model, data, 3, method="exact").log_likelihood,
+                                   fit_ml(model, data, 3, method="exact",
+                                          warn=False).log_likelihood,
                                    rtol=0, atol=1e-6)
     lone = model.simulate(ob.Scene(directions=[0.3], intensities=[1.0]), rng=rng, size=4)
     over = fit_ml(model, lone, 2, warn=False)  # a surplus source switched off: escalated
     np.testing.assert_allclose(over.log_likelihood,
-                               fit_ml(model, lone, 2, method="exact").log_likelihood,
+                               fit_ml(model, lone, 2, method="exact", warn=False).log_likelihood,
                                rtol=0, atol=1e-6)
     fig3 = ob.Model(ob.Ring(30), 1e-2)
     data = fig3.simulate(ob.Scene(directions=[0.5, 0.5 + np.pi], intensities=[1.0, 0.2]),

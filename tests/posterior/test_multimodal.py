@@ -1,0 +1,187 @@
+"""Near-antipodal pairs, the mode search and the multimodal sampler."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from olsbayes import AntipodalWarning, InputError, Model, MultimodalWarning, Ring, Sphere
+from olsbayes.antipodal import antipodal_pairs, mirror_pair
+from olsbayes.circular import wrap_angle
+from olsbayes.exchange import match_sources
+from olsbayes.posterior import ModeOptions, PosteriorResult, SamplerOptions, sample
+from olsbayes.posterior.modes import find_modes
+from olsbayes.priors import default_priors
+
+# two pairs 0.44 and 0.68 sensor spacings from antipodal on a ring of 30
+TRUTH4 = np.array([-2.6, 1.0, -1.05, 0.8, 0.45, 1.2, 1.95, 0.9])
+SHORT = SamplerOptions(n_steps=200, rhat_max=None)
+
+
+@pytest.fixture(scope="module")
+def scene4():
+    model = Model(Ring(30), sigma=1e-3)
+    return model, model.simulate(TRUTH4, rng=0)
+
+
+@pytest.fixture(scope="module")
+def multimodal4(scene4):
+    model, data = scene4
+    with pytest.warns(MultimodalWarning, match="near-antipodal"):
+        return sample(model, data, 4, rng=3, progress=False, options=SHORT)
+
+
+def test_opposite_readings_differ_by_one_cosine():
+    """s(alpha) - s(alpha + pi) = sum_k I_k cos(theta_k - alpha) on an even ring."""
+    model = Model(Ring(30), sigma=1e-3)
+    s = model.response(TRUTH4)
+    alpha = np.arctan2(model.array.normals[:, 1], model.array.normals[:, 0])
+    th, amp = TRUTH4[0::2], TRUTH4[1::2]
+    expect = np.sum(amp[:, None] * np.cos(th[:, None] - alpha[None, :]), axis=0)
+    np.testing.assert_allclose(s[:15] - s[15:], expect[:15], atol=1e-12)
+
+
+def test_antipodal_pairs_found_with_signed_offsets():
+    model = Model(Ring(30), sigma=1e-3)
+    pairs = antipodal_pairs(model, TRUTH4)
+    spacing = 2 * np.pi / 30
+    assert [(i, j) for i, j, _ in pairs] == [(0, 2), (1, 3)]
+    np.testing.assert_allclose([p[2] for p in pairs],
+                               [(0.45 + 2.6 - np.pi) / spacing, (1.95 + 1.05 - np.pi) / spacing])
+    assert antipodal_pairs(model, TRUTH4, within=0.4) == ()
+    assert antipodal_pairs(Model(Sphere.fibonacci(20), sigma=0.01), np.array([0.1, 0.2, 1.0])) == ()
+    with pytest.raises(InputError, match="within"):
+        antipodal_pairs(model, TRUTH4, within=0.0)
+    y = mirror_pair(TRUTH4, 0, 2, 2)
+    np.testing.assert_allclose(y[[0, 4]], wrap_angle(np.array([0.45 - np.pi, -2.6 + np.pi])))
+
+
+def test_mode_search_finds_the_four_mirrored_optima(scene4):
+    """Each near-antipodal pair has two optima of (almost) equal fit: 2 x 2 modes."""
+    model, data = scene4
+    prior = default_priors(model, 4, data=data)
+    modes, lp = find_modes(model, data, prior, TRUTH4, ModeOptions())
+    assert modes.shape == (4, 8)
+    assert lp[0] - lp[-1] < 0.5  # within half a nat: none is negligible
+    err = np.abs(wrap_angle(modes[:, 0::2] - TRUTH4[0::2]))
+    # each mode moves both sources of a pair (~0.1 rad, > 100 CRLB sd) or neither
+    moved = err > 0.05
+    assert np.array_equal(moved[:, 0], moved[:, 2]) and np.array_equal(moved[:, 1], moved[:, 3])
+    assert len({tuple(m) for m in moved[:, :2]}) == 4
+
+
+def test_multimodal_run_weights_the_modes_and_covers_the_truth(scene4, multimodal4):
+    model, _ = scene4
+    res = multimodal4
+    assert isinstance(res, PosteriorResult) and res.modes.n_modes == 4
+    # equal fits and equal Fisher volumes: weights 1/4 each, up to the evidence error
+    # (se ~0.01 nats per mode) and the modes' log-posterior spread (< 0.05 nats)
+    np.testing.assert_allclose(res.modes.weight, 0.25, atol=0.03)
+    assert np.all(res.modes.stayed > 0.99)
+    # the truth's own mode is among them (within 5 CRLB sd), with a quarter of the mass;
+    # a single ensemble finds it one time in four (the ML point picks one mode)
+    err = np.abs(wrap_angle(match_sources(model, res.modes.params, TRUTH4) - TRUTH4))
+    sd = np.sqrt(np.diag(np.linalg.inv(model.fisher(TRUTH4))))
+    near = np.all(err[:, 0::2] < 5 * sd[0::2], axis=1)
+    assert near.sum() == 1 and res.modes.weight[near][0] > 0.2
+    # the marginals span the modes: each angle's 90 % interval is wider than the
+    # mirror shift (~0.1 rad), not CRLB-wide (~0.001 rad)
+    lo, hi = np.quantile(res.unwrapped_samples().reshape(-1, 8), [0.05, 0.95], axis=0)
+    assert np.all(hi[0::2] - lo[0::2] > 0.08)
+    assert "modes=4" in repr(res)
+
+
+def test_single_ensemble_warns_and_misses_a_mode(scene4):
+    model, data = scene4
+    opts = SamplerOptions(n_steps=200, rhat_max=None, multimodal=False)
+    with pytest.warns(AntipodalWarning, match="antipodal"):
+        res = sample(model, data, 4, rng=3, progress=False, options=opts)
+    assert res.modes is None
+    sd = res.flat_samples.std(axis=0)
+    np.testing.assert_array_less(sd[0::2], 0.01)  # one mode: CRLB-wide, not 0.1 rad
+
+
+def test_modes_survive_the_netcdf_round_trip(multimodal4, tmp_path):
+    back = PosteriorResult.from_netcdf(multimodal4.to_netcdf(tmp_path / "p.nc"))
+    np.testing.assert_array_equal(back.modes.weight, multimodal4.modes.weight)
+    np.testing.assert_array_equal(back.modes.params, multimodal4.modes.params)
+    assert back.modes.reason == multimodal4.modes.reason
+
+
+def test_default_path_unchanged_when_nothing_triggers():
+    """A well-separated scene: no mode search result, the same draws as multimodal=False."""
+    model = Model(Ring(30), sigma=0.01)
+    data = model.simulate(np.array([-1.0, 1.0, 1.2, 0.8]), rng=0)
+    opts = SamplerOptions(n_steps=200, rhat_max=None)
+    auto = sample(model, data, 2, rng=5, progress=False, options=opts)
+    off = sample(model, data, 2, rng=5, progress=False,
+                 options=SamplerOptions(n_steps=200, rhat_max=None, multimodal=False))
+    assert auto.modes is None
+    np.testing.assert_array_equal(auto.samples, off.samples)
+
+
+def test_requested_on_one_mode_runs_and_reports_it():
+    model = Model(Ring(30), sigma=0.01)
+    data = model.simulate(np.array([0.4, 1.0]), rng=1)
+    res = sample(model, data, 1, rng=2, progress=False,
+                 options=SamplerOptions(n_steps=300, rhat_max=None, multimodal=True))
+    assert res.modes.n_modes == 1 and res.modes.reason == "requested"
+    np.testing.assert_allclose(res.modes.weight, [1.0])
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"log_range": 0.0}, "log_range"),
+    ({"max_modes": 0}, "max_modes"),
+    ({"rounds": 0}, "rounds"),
+    ({"evidence_draws": 10}, "evidence_draws"),
+    ({"shifts": "yes"}, "shifts"),
+    ({"condition_max": 1.0}, "condition_max"),
+    ({"antipodal_spacings": -1.0}, "antipodal_spacings"),
+])
+def test_mode_options_validated(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        ModeOptions(**kwargs)
+
+
+def test_sampler_options_and_start_validated(scene4):
+    model, data = scene4
+    with pytest.raises(InputError, match="multimodal"):
+        SamplerOptions(multimodal="auto")
+    with pytest.raises(InputError, match="modes"):
+        SamplerOptions(modes={"log_range": 3})
+    with pytest.raises(InputError, match="multimodal"):
+        sample(model, data, 4, start="prior", progress=False,
+               options=SamplerOptions(multimodal=True))
+
+
+def test_crlb_alarm_reruns_with_the_modes(scene4, monkeypatch):
+    """A default run narrower than the CRLB at high SNR is rerun over the modes found."""
+    import olsbayes.posterior._modal as modal
+    import olsbayes.posterior.sampler as sampler
+
+    model, data = scene4
+    monkeypatch.setattr(modal, "trigger_reason", lambda *args: "")  # no trigger before the run
+    monkeypatch.setattr(sampler, "narrower_than_crlb",
+                        lambda result: [("theta[0]", 0.5, 1000.0)])
+    with pytest.warns(MultimodalWarning, match="far below the CRLB"):
+        res = sample(model, data, 4, rng=3, progress=False,
+                     options=SamplerOptions(n_steps=150, rhat_max=None))
+    assert res.modes.n_modes == 4 and "CRLB" in res.modes.reason
+    off = SamplerOptions(n_steps=150, rhat_max=None, modes=ModeOptions(crlb_alarm=False))
+    with pytest.warns(Warning, match="far below the CRLB"):
+        assert sample(model, data, 4, rng=3, progress=False, options=off).modes is None
+
+
+def test_ml_fit_warns_about_a_mirrored_optimum(scene4):
+    """fit_ml: the mirrored configuration of a near-antipodal pair is a distinct optimum
+    within 3 of the log-likelihood (AntipodalWarning); an exactly antipodal pair is not."""
+    from olsbayes import fit_ml
+
+    model, data = scene4
+    with pytest.warns(AntipodalWarning, match="mirrored"):
+        fit_ml(model, data, 4)
+    fig3 = Model(Ring(30), sigma=1e-2)
+    fig3_data = fig3.simulate(np.array([0.5, 1.0, 0.5 + np.pi, 0.2]), rng=4, size=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", AntipodalWarning)
+        fit_ml(fig3, fig3_data, 2)
