@@ -29,7 +29,9 @@ def _panel(ax, rows: list[dict], norm, cmap) -> None:
         txt = "n/a" if not r["state"] else f"{MARK[r['state']]}\n{r['cov90']:.2f}"
         if r["state"] == "fails" and r["sbc_p"] <= 0.01:
             txt += f"\np={r['sbc_p']:.0e}"
-        ax.text(j, i, txt, ha="center", va="center", fontsize=6.5)
+        dark = bool(r["state"]) and not 0.15 < norm(r["cov90"] - 0.9) < 0.85
+        ax.text(j, i, txt, ha="center", va="center", fontsize=6.5,
+                color="white" if dark else "black")
     ax.set_facecolor("0.85")
     ax.imshow(np.ma.masked_invalid(img), cmap=cmap, norm=norm, origin="lower",
               aspect="auto")
@@ -45,7 +47,8 @@ def plot_map(rows: list[dict], path: Path, mode: str, n: int) -> None:
     methods = list(dict.fromkeys(r["method"] for r in rows))
     grps = list(dict.fromkeys(r["group"] for r in rows))
     fig, axes = plt.subplots(len(methods), len(grps), squeeze=False,
-                             figsize=(1.9 * len(grps) + 1.2, 1.55 * len(methods) + 1.2))
+                             figsize=(2.3 * len(grps) + 1.6, 1.55 * len(methods) + 1.2),
+                             gridspec_kw=dict(wspace=0.45, hspace=0.35))
     norm, cmap = TwoSlopeNorm(vmin=-0.9, vcenter=0.0, vmax=0.1), plt.get_cmap("RdBu")
     for i, m in enumerate(methods):
         for j, g in enumerate(grps):
@@ -56,8 +59,8 @@ def plot_map(rows: list[dict], path: Path, mode: str, n: int) -> None:
                 ax.set_title(g, fontsize=8)
             if i == len(methods) - 1:
                 xname = sub[0]["x_name"] if sub else ""
-                ax.set_xlabel("pair gap from antipodal (spacings, bin)" if xname == "antipodal"
-                              else "separation (spacings)", fontsize=7)
+                ax.set_xlabel("pair's gap from pi\n(spacings, bin from)" if xname == "antipodal"
+                              else "separation\n(spacings)", fontsize=7)
             if j == 0:
                 ax.set_ylabel(f"{m}\nSNR per source", fontsize=8)
     sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
