@@ -32,8 +32,8 @@ large that effect is.
 Each (group, method) is its own resumable study (checkpoint in --out); methods
 of a group share the study seed, so they see the same scenes.  Modes: quick
 (default), --medium, --full (the reference table); --ks / --groups / --methods
-restrict a run.  Outputs in --out: calibration_map.png, calibration_map.csv,
-calibration_map.txt and the studies' NetCDF files.
+restrict a run.  Outputs in --out: calibration_map-<mode>.png, .csv and .txt,
+and the studies' checkpoints and NetCDF files.
 """
 
 from __future__ import annotations
@@ -186,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="only these groups, e.g. ring-k4-antipodal sphere-k2")
     ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=list(METHODS))
     ap.add_argument("--trials", type=int, default=None, help="scenes per cell (override)")
+    ap.add_argument("--max-steps", type=int, default=None,
+                    help="cap on the emcee steps (override; 20000 is the sampler's default)")
     args = ap.parse_args(argv)
     name = "full" if args.full else "medium" if args.medium else "quick"
     mode = MODES[name]
@@ -199,19 +201,19 @@ def main(argv: list[str] | None = None) -> int:
         if args.groups and tag not in args.groups:
             continue
         for method in args.methods:
-            fx = {**fixed, "method": method, "max_steps": mode["max_steps"]}
+            fx = {**fixed, "method": method, "max_steps": args.max_steps or mode["max_steps"]}
             results[(tag, method)] = study(args, f"{name}-{tag}-{method}", calmap_trial, grid,
                                            n, fixed=fx, seed_offset=offsets[tag], chunk_size=1)
     rows = summarise(results)
     text = print_table(rows)
     print(text)
-    write_text_atomic(args.out / "calibration_map.txt", text + "\n")
+    write_text_atomic(args.out / f"calibration_map-{name}.txt", text + "\n")
     keys = list(dict.fromkeys(k for r in rows for k in r))
     csv = ",".join(keys) + "\n" + "\n".join(",".join(str(r.get(k, "")) for k in keys)
                                             for r in rows)
-    write_text_atomic(args.out / "calibration_map.csv", csv + "\n")
-    plot_map(rows, args.out / "calibration_map.png", name, n)
-    print(f"wrote {args.out / 'calibration_map.png'}")
+    write_text_atomic(args.out / f"calibration_map-{name}.csv", csv + "\n")
+    plot_map(rows, args.out / f"calibration_map-{name}.png", name, n)
+    print(f"wrote {args.out / f'calibration_map-{name}.png'}")
     return 0
 
 
