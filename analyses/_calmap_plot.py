@@ -65,8 +65,8 @@ def plot_map(rows: list[dict], path: Path, mode: str, n: int) -> None:
                 ax.set_ylabel(f"{m}\nSNR per source", fontsize=8)
     sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
     fig.colorbar(sm, ax=axes, shrink=0.6, label="90 % coverage - 0.9")
-    fig.suptitle(f"Calibration map ({mode}: {n} scenes per cell).  \u2713 calibrated "
-                 "(SBC p > 0.01, coverage within 0.03), \u2717 fails, ? undecided; "
+    fig.suptitle(f"Calibration map ({mode}: {n} scenes per cell)\n\u2713 calibrated "
+                 "(SBC p > 0.01, coverage within 0.03), \u2717 fails, ? undecided\n"
                  "text: 90 % coverage", fontsize=8)
     fig.savefig(path, dpi=130)
     plt.close(fig)
