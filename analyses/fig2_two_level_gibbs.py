@@ -37,6 +37,7 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes.imaging import (  # noqa: E402
@@ -62,12 +63,12 @@ def run(sensors, sources, trials, n_samples, width, n_chains, starts, rng):
     groups = neighbour_groups(model, dirs, width - 1)
     s = {k: [] for k in ("map", "mean", "cov", "unsure", "fail", "better", "truth_best",
                          "rhat", "sec")}
-    for _ in range(trials):
+    for _ in tqdm(range(trials), desc=f"{sensors} sensors", unit=" draw", leave=False):
         y = a @ truth + SIGMA * rng.standard_normal(a.shape[0])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ob.NullSpaceWarning)
             res = ob.image(model, y, dirs, TwoLevel(i_max=1.0),
-                           options=ImageOptions(reference=truth))
+                           options=ImageOptions(reference=truth), progress=False)
         relaxed = sparse_relaxation(a, y, SIGMA, 1.0)
         half = n_chains // 2 if starts == "mixed" else n_chains
         s0 = np.vstack([np.tile(res.mode > 0.5, (half, 1)),

@@ -27,6 +27,7 @@ import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes.exchange import estimation_errors  # noqa: E402
@@ -123,11 +124,11 @@ def main(argv: list[str] | None = None) -> int:
     trials = a.trials or (4000 if a.full else 500)
     a.out.mkdir(parents=True, exist_ok=True)
     seeds = np.random.SeedSequence(a.seed).spawn(len(SIGMAS) + len(NS))
+    settings = [(30, s) for s in SIGMAS] + [(n, 0.01) for n in NS]
     rows = []
-    for sigma, ss in zip(SIGMAS, seeds):
-        rows += measure(30, sigma, trials, np.random.default_rng(ss))
-    for n, ss in zip(NS, seeds[len(SIGMAS):]):
-        rows += measure(n, 0.01, trials, np.random.default_rng(ss))
+    for (n, sigma), ss in tqdm(list(zip(settings, seeds)), desc="Fig. 3 settings",
+                               unit=" setting", leave=False):
+        rows += measure(n, sigma, trials, np.random.default_rng(ss))
     print_table(rows)
     with open(a.out / "fig3_crlb.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))

@@ -45,6 +45,7 @@ import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes.exchange import estimation_errors  # noqa: E402
@@ -264,7 +265,9 @@ def main(argv: list[str] | None = None) -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     seps = np.geomspace(0.25 * 2 * np.pi / N, np.pi / 2, a.points)
     seeds = np.random.SeedSequence(a.seed).spawn(len(seps))
-    rows = [measure(s, trials, np.random.default_rng(ss)) for s, ss in zip(seps, seeds)]
+    rows = [measure(s, trials, np.random.default_rng(ss))
+            for s, ss in tqdm(list(zip(seps, seeds)), desc="Fig. 4 separations",
+                              unit=" separation", leave=False)]
     print_table(rows)
     n_place, n_draws = (a.placements or (64 if a.full else 16)), (200 if a.full else 60)
     pseeds = np.random.SeedSequence([a.seed, 1]).spawn(len(seps))

@@ -48,6 +48,7 @@ import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes._io import write_text_atomic  # noqa: E402
@@ -107,7 +108,9 @@ def run(n_scenes: int, n_draws: int, min_gap: float, seed: int) -> list[dict]:
     for sigma, dss in zip(SIGMAS, draw_ss):
         model = ob.Model(ob.Ring(30), sigma)
         rng = np.random.default_rng(dss)
-        stats = np.array([scene_stats(model, s, n_draws, rng) for s in scenes])
+        stats = np.array([scene_stats(model, s, n_draws, rng)
+                          for s in tqdm(scenes, desc=f"sigma {sigma:g}", unit=" scene",
+                                        leave=False)])
         b_ml, b_or, b_riv = scene_stats(model, bench, n_draws, rng)
         q = np.quantile(stats[:, 0], (0.1, 0.25, 0.5, 0.75, 0.9))
         rows.append(dict(

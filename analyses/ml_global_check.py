@@ -26,6 +26,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 import olsbayes as ob
 from olsbayes._io import ensure_dir, write_text_atomic
@@ -55,7 +56,7 @@ def run_k(model: ob.Model, k: int, args: argparse.Namespace, seq: np.random.Seed
     rng = np.random.default_rng(seq)
     rows = {"exact": [], "fast": [], "multistart": [], "kink": []}
     times = {"exact": 0.0, "fast": 0.0, "multistart": 0.0}
-    for i in range(args.scenes):
+    for i in tqdm(range(args.scenes), desc=f"K = {k}", unit=" scene", leave=False):
         data = model.simulate(random_scene(rng, k, np.radians(args.min_sep)), rng=rng,
                               size=args.draws)
         fits = (

@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from olsbayes import Model, OlsBayesWarning, Ring
 from olsbayes.posterior import SamplerOptions, sample
@@ -56,7 +57,9 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     sigmas = np.geomspace(0.003, 0.3, 9 if args.full else 5)
     reps = 4 if args.full else 1
-    rows = [r for s in sigmas for rep in range(reps) for r in one_run(float(s), rep)]
+    runs = [(float(s), rep) for s in sigmas for rep in range(reps)]
+    rows = [r for s, rep in tqdm(runs, desc="posteriors", unit=" run", leave=False)
+            for r in one_run(s, rep)]
     cols = ["sigma", "rep", "param", "ratio", "mc_error", "flagged", "converged", "rhat",
             "reason", "warnings"]
     text = [",".join(cols)] + [",".join(

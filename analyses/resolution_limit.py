@@ -52,6 +52,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from olsbayes import Model, Ring, crlb_eq4
 from olsbayes.bounds import bound_covariance
@@ -82,14 +83,14 @@ def _crlb_theta(model: Model, x: np.ndarray) -> float:
 def run_point(model: Model, sep: float, trials: int, seed: int, fit_method: str = "exact") -> dict:
     rng = np.random.default_rng(seed)
     det, lbf, err, bound = [], [], [], []
-    for t in range(trials):
+    for t in tqdm(range(trials), desc=f"separation {sep / H:g} h", unit=" trial", leave=False):
         th = rng.uniform(-np.pi, np.pi)
         x = model.canonical(np.array([th, 1.0, th + sep, 1.0]))
         d = model.simulate(x, rng=rng)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OlsBayesWarning)
             res = select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX,
-                           options=SelectOptions(ml_method=fit_method))
+                           options=SelectOptions(ml_method=fit_method), progress=False)
         det.append(res.best == 2)
         z1, z2 = res[1].log_evidence, res[2].log_evidence
         lbf.append(z2 - z1 if np.isfinite(z2) else -np.inf)
@@ -115,13 +116,14 @@ def run_point(model: Model, sep: float, trials: int, seed: int, fit_method: str 
 def false_alarms(model: Model, trials: int, seed: int, fit_method: str = "exact") -> float:
     rng = np.random.default_rng(seed)
     hits = 0
-    for _ in range(trials):
+    for _ in tqdm(range(trials), desc="false alarms", unit=" trial", leave=False):
         x = np.array([rng.uniform(-np.pi, np.pi), 1.0])
         d = model.simulate(x, rng=rng)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OlsBayesWarning)
             hits += select_k(model, d, k_max=2, method="laplace", rng=rng, i_max=I_MAX,
-                             options=SelectOptions(ml_method=fit_method)).best == 2
+                             options=SelectOptions(ml_method=fit_method),
+                             progress=False).best == 2
     return hits / trials
 
 

@@ -58,7 +58,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-import olsbayes.posterior._run as _run  # noqa: E402
+import olsbayes.posterior._rhat as _rhat  # noqa: E402
 import olsbayes.posterior.sampler as _sampler  # noqa: E402
 from olsbayes import ConvergenceWarning, Model, Ring  # noqa: E402
 from olsbayes.ml import fit_ml  # noqa: E402
@@ -80,12 +80,7 @@ def _timed(fn, key):
     return wrapped
 
 
-def _timed_checker(*args, **kw):
-    return _timed(_RHAT_CHECKER(*args, **kw), "rhat")
-
-
-_RHAT_CHECKER = _run._rhat_checker
-_run._rhat_checker = _timed_checker  # the loop looks the checker up at call time
+_rhat.RhatCheck.__call__ = _timed(_rhat.RhatCheck.__call__, "rhat")
 _sampler.run_ensemble = _timed(_sampler.run_ensemble, "loop")
 
 

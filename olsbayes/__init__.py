@@ -8,6 +8,7 @@ and Monte Carlo studies, all judged against the Cramér–Rao lower bound.
 
 from ._version import __version__
 from .bounds import CRLBResult, crlb, crlb_eq3, crlb_eq4
+from .calibration import Calibration, calibrate
 from .circular import wrap_angle
 from .errors import (
     ConfigError,
@@ -26,6 +27,8 @@ from .geometry import Plate, Ring, SensorArray, Sphere
 from .imaging import ImageOptions, ImageResult, image
 from .ml import FastOptions, MLResult, MultistartOptions, fit_ml
 from .model import Model
+from .noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, NoiseModel, Poisson
+from .nuisance import Nuisance
 from .posterior import PosteriorResult, SamplerOptions, write_report
 from .posterior import sample as sample_posterior
 from .priors import ScenePrior, default_priors
@@ -50,6 +53,14 @@ __all__ = [
     # model
     "Scene",
     "Model",
+    "NoiseModel",
+    "GaussianKnown",
+    "GaussianUnknown",
+    "GaussianPerSensor",
+    "Poisson",
+    "Nuisance",
+    "Calibration",
+    "calibrate",
     "CRLBResult",
     "crlb",
     "crlb_eq3",

@@ -67,13 +67,16 @@ def storable(cls: type) -> type:
 
 def _registry() -> dict[str, type]:
     """The classes a file may name: the registered results, models, arrays, laws, priors."""
-    from . import geometry, sensitivity
+    from . import geometry, noise, sensitivity
     from .model import Model
+    from .nuisance import Nuisance
     from .priors import scene as scene_priors
     from .priors import univariate
 
     classes = [Model, geometry.SensorArray, geometry.Ring, geometry.Sphere, geometry.Plate,
-               sensitivity.Cosine, sensitivity.CosinePower, scene_priors.ScenePrior]
+               sensitivity.Cosine, sensitivity.CosinePower, scene_priors.ScenePrior, Nuisance,
+               noise.GaussianKnown, noise.GaussianUnknown, noise.GaussianPerSensor,
+               noise.Poisson]
     classes += [getattr(univariate, name) for name in univariate.__all__ if name != "Prior"]
     return {**_RESULTS, **{cls.__name__: cls for cls in classes}}
 
@@ -147,10 +150,14 @@ def encode(obj: Any, arrays: dict[str, np.ndarray], path: str = "") -> Any:
     if isinstance(getattr(obj, "sensitivity", None), CustomSensitivity):
         return {"__unstorable__": repr(obj)}
     if name == "Model" and name in registry:  # rebuilt by its constructor: caches recomputed
-        return {"__model__": {"array": encode(obj.array, arrays, _join(path, "array")),
-                              "sigma": obj.sigma,
-                              "sensitivity": encode(obj.sensitivity, arrays,
-                                                     _join(path, "sensitivity"))}}
+        spec = {"array": encode(obj.array, arrays, _join(path, "array")),
+                "sigma": obj.sigma,
+                "sensitivity": encode(obj.sensitivity, arrays, _join(path, "sensitivity"))}
+        if not obj.noise.is_default:  # other noise models and nuisance terms, when present
+            spec["noise"] = encode(obj.noise, arrays, _join(path, "noise"))
+        if not obj.nuisance.is_trivial:
+            spec["nuisance"] = encode(obj.nuisance, arrays, _join(path, "nuisance"))
+        return {"__model__": spec}
     if _stateful(obj) and name in registry:
         state = {k: v for k, v in obj.__getstate__().items() if k not in _CACHES}
         return {"__state__": name,
@@ -184,8 +191,10 @@ def decode(tree: Any, arrays: Mapping[str, np.ndarray], model: Any = None) -> An
         from .model import Model
 
         spec = tree["__model__"]
-        return Model(decode(spec["array"], arrays), spec["sigma"],
-                     decode(spec["sensitivity"], arrays))
+        noise = decode(spec["noise"], arrays) if "noise" in spec else None
+        return Model(decode(spec["array"], arrays), None if noise else spec["sigma"],
+                     decode(spec["sensitivity"], arrays), noise=noise,
+                     nuisance=decode(spec.get("nuisance"), arrays))
     registry = _registry()
     name = tree.get("__class__") or tree.get("__state__")
     if name not in registry:

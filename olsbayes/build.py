@@ -13,10 +13,12 @@ from typing import Any
 
 import numpy as np
 
+from .build_measurement import measurement_from_config
 from .config import Config, read_readings
 from .errors import ConfigError, InputError
 from .geometry import Plate, Ring, SensorArray, Sphere
 from .model import Model
+from .noise import GaussianKnown
 from .scene import Scene
 from .sensitivity import CosinePower, get_sensitivity
 
@@ -93,7 +95,12 @@ def array_from_config(cfg: Config) -> SensorArray:
 
 
 def model_from_config(cfg: Config) -> Model:
-    """The :class:`Model` (array, sigma, sensitivity law) of the ``[sensor]`` section."""
+    """The :class:`Model` of the ``[sensor]`` section (array, sigma, sensitivity law).
+
+    Its noise and nuisance terms come from ``[noise]``, ``[calibration]`` and
+    ``[background]`` when the configuration has them
+    (:func:`olsbayes.build_measurement.measurement_from_config`).
+    """
     sec = cfg.section("sensor")
     law = sec.get("sensitivity", "cosine")
     if "p" in sec and law != "cosine_power":
@@ -102,9 +109,12 @@ def model_from_config(cfg: Config) -> Model:
             f"got sensitivity = {law!r}"
         )
     array = array_from_config(cfg)
+    noise, nuisance = measurement_from_config(cfg, array)
     with _as_config_error(cfg, "sensor"):
         sens = CosinePower(sec.get("p", 2.0)) if law == "cosine_power" else get_sensitivity(law)
-        return Model(array, sec["sigma"], sens)
+        if isinstance(noise, GaussianKnown) and nuisance is None:
+            return Model(array, noise.sigma, sens)
+        return Model(array, None, sens, noise=noise, nuisance=nuisance)
 
 
 def scene_from_config(cfg: Config, model: Model | None = None) -> Scene:
@@ -118,10 +128,8 @@ def scene_from_config(cfg: Config, model: Model | None = None) -> Scene:
             pos = pos.reshape(-1, 3) if pos.size == 0 else pos
             scene = Scene(positions=pos, intensities=sec["intensities"])
         else:
-            d = sec["directions"]
-            if sec.get("angle_unit", "rad") == "deg":
-                d = np.deg2rad(d)
-            scene = Scene(directions=d, intensities=sec["intensities"])
+            scene = Scene(directions=sec["directions"], intensities=sec["intensities"],
+                          unit=sec.get("angle_unit", "rad"))
         if model is not None:
             model.pack(scene)
     return scene

@@ -18,12 +18,15 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from . import measurement
 from ._frozen import Frozen
 from ._nearfield import near_gain, near_jacobian_t
-from ._validation import as_rng, check_reading_range, finite_array, integer, noise_sd, real_array
+from ._validation import finite_array, real_array
 from .circular import wrap_angle
 from .errors import InputError
 from .geometry import SensorArray, lonlat_to_unit
+from .noise import NoiseModel
+from .nuisance import Nuisance
 from .scene import Scene
 from .sensitivity import Sensitivity, get_sensitivity
 
@@ -38,28 +41,29 @@ _FLOAT = np.dtype(float)
 _LOC_NAMES = {"angle": ("theta",), "lonlat": ("lon", "lat"), "position": ("x", "y", "z")}
 
 
-def _fits_into(small: tuple[int, ...], big: tuple[int, ...]) -> bool:
-    """Whether ``small`` broadcasts to ``big`` without enlarging it."""
-    if len(small) > len(big):
-        return False
-    return all(a in (1, b) for a, b in zip(reversed(small), reversed(big)))
-
-
 _T = TypeVar("_T")
 
 
 class Model(Frozen):
-    """Eq. 1 for one sensor array, noise level and sensitivity law (immutable).
+    """Eq. 1 for one sensor array, noise model and sensitivity law (immutable).
 
     Parameters
     ----------
     array : SensorArray
         The sub-sensors (:class:`~olsbayes.Ring`, :class:`~olsbayes.Sphere`, ...).
-    sigma : float
+    sigma : float, optional
         Standard deviation of the additive Gaussian sub-sensor noise, in units of
-        the readings, within [1e-100, 1e100] (:data:`olsbayes._validation.SIGMA_RANGE`).
+        the readings, within [1e-100, 1e100] (:data:`olsbayes._validation.SIGMA_RANGE`):
+        ``noise=GaussianKnown(sigma)``.  Give sigma or ``noise``.
     sensitivity : Sensitivity or str, optional
         Angular law; default the paper's clipped cosine.
+    noise : NoiseModel, optional
+        Any :mod:`olsbayes.noise` model (unknown sigma, per-sensor sigma, Poisson
+        counts); ``sigma`` is then its nominal scale (:attr:`NoiseModel.scale`).
+    nuisance : Nuisance, optional
+        Gains, offsets and diffuse background, known or inferred
+        (:mod:`olsbayes.nuisance`); default none.  The likelihood, Fisher
+        information and simulation go through :mod:`olsbayes.measurement`.
 
     Notes
     -----
@@ -71,18 +75,16 @@ class Model(Frozen):
 
     _mutation_hint = "; use with_sigma() or with_sensitivity() for a changed copy"
 
-    def __init__(
-        self,
-        array: SensorArray,
-        sigma: float,
-        sensitivity: Sensitivity | str | None = None,
-    ):
+    def __init__(self, array: SensorArray, sigma: float | None = None,
+                 sensitivity: Sensitivity | str | None = None, *,
+                 noise: NoiseModel | None = None, nuisance: Nuisance | None = None):
         if not isinstance(array, SensorArray):
             raise InputError(
                 f"array must be a SensorArray (Ring, Sphere, Plate); got {type(array).__name__}"
             )
         self.array = array
-        self.sigma = noise_sd("sigma", sigma)
+        self.noise, self.nuisance = measurement.resolve(sigma, noise, nuisance, array.n_sensors)
+        self.sigma = self.noise.scale
         self.sensitivity = get_sensitivity(sensitivity)
         self._normals_t = np.ascontiguousarray(array.normals.T)
         self._positions_t = (
@@ -99,12 +101,17 @@ class Model(Frozen):
 
     # -- copies and derived constants ---------------------------------------------
     def with_sigma(self, sigma: float) -> "Model":
-        """The same array and law with noise standard deviation ``sigma`` (> 0)."""
-        return Model(self.array, sigma, self.sensitivity)
+        """The same array, law and nuisance with Gaussian noise of known sd ``sigma`` (> 0)."""
+        return Model(self.array, sigma, self.sensitivity, nuisance=self.nuisance)
+
+    def with_noise(self, noise: NoiseModel, nuisance: Nuisance | None = None) -> "Model":
+        """The same array and law with another noise model (and nuisance, default the same)."""
+        return Model(self.array, None, self.sensitivity, noise=noise,
+                     nuisance=self.nuisance if nuisance is None else nuisance)
 
     def with_sensitivity(self, sensitivity: Sensitivity | str | None) -> "Model":
         """The same array and noise with another sensitivity law."""
-        return Model(self.array, self.sigma, sensitivity)
+        return Model(self.array, None, sensitivity, noise=self.noise, nuisance=self.nuisance)
 
     def memo(self, key: object, make: Callable[[], _T] | None = None) -> _T | None:
         """``make()``, computed once per model and ``key`` (a hashable label).
@@ -336,51 +343,42 @@ class Model(Frozen):
             out[..., -1, :] = g  # (..., K, d+1, N)
         return out.reshape(x.shape + (self._n_sensors,))
 
-    # -- statistics -------------------------------------------------------------
-    def check_data(self, data: object, name: str = "data") -> np.ndarray:
-        """Validate readings: real, finite, last axis of length N.
+    # -- statistics (olsbayes.measurement) ---------------------------------------------
+    def check_data(self, data: object, name: str = "data", frames: bool = False) -> np.ndarray:
+        """Validate readings: real, finite, last axis of length N (frames: (..., F, N)).
 
         Each data vector's largest |reading| must lie within a factor
-        :data:`~olsbayes._validation.READING_RATIO` of sigma (or be 0).
+        :data:`~olsbayes._validation.READING_RATIO` of sigma (or be 0); Poisson
+        readings must be counts.
         """
-        arr = finite_array(name, data, last=self.n_sensors)
-        check_reading_range(name, arr, self.sigma)
-        return arr
+        return measurement.check_data(self, data, name, frames)
 
-    def log_likelihood(self, scene_or_params: Scene | np.ndarray, data: np.ndarray) -> np.ndarray:
-        """Gaussian log-likelihood log p(data | params), batched: shape (...,).
+    def log_likelihood(self, scene_or_params: Scene | np.ndarray, data: np.ndarray, *,
+                       extra: np.ndarray | None = None, frames: bool = False) -> np.ndarray:
+        """Log-likelihood log p(data | params), batched: shape (...,).
 
-        ``params`` (..., n_params) and ``data`` (..., N) broadcast over leading axes.
+        ``params`` (..., n_params) and ``data`` (..., N) broadcast over leading axes;
+        with ``frames`` the data are (..., F, N), F frames of one scene each.
+        ``extra`` (..., Q): values of the inferred noise and nuisance parameters
+        (:func:`olsbayes.measurement.extra_names`), default their nominal values.
         """
-        data = real_array("data", data)
-        if data.ndim == 0 or data.shape[-1] != self._n_sensors:
-            raise InputError(
-                f"data must have last axis of length {self.n_sensors}; got shape {data.shape}"
-            )
-        x = self._as_params(scene_or_params)
-        if x.ndim == 1 and data.ndim == 1 and self._kind != "position":
-            mu = self._response_one(x)  # a fresh array: the residual can overwrite it
-            resid = np.subtract(data, mu, out=mu)
-        else:
-            mu = self._response_unchecked(x)
-            resid = np.subtract(data, mu, out=mu) if _fits_into(data.shape, mu.shape) else (
-                data - mu)  # in place when it fits: no second (..., N) array
-        chi2 = np.einsum("...n,...n->...", resid, resid) / self.sigma**2
-        return -0.5 * chi2 - self._log_norm
+        return measurement.log_likelihood(self, scene_or_params, data, extra=extra,
+                                          frames=frames)
 
-    def fisher(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
-        """Fisher information J^T J / sigma^2, shape (..., n_params, n_params)."""
-        jac = self.jacobian(scene_or_params)
-        return np.swapaxes(jac, -1, -2) @ jac / self.sigma**2
+    def fisher(self, scene_or_params: Scene | np.ndarray, *, extra: np.ndarray | None = None,
+               n_frames: int | None = None) -> np.ndarray:
+        """Fisher information of the scene parameters, shape (..., n_params, n_params).
+
+        J^T W J with the noise model's weights W (Gaussian: 1 / sigma^2; Poisson:
+        exposure / mean), for ``n_frames`` frames; extra parameters held fixed.
+        """
+        return measurement.fisher(self, scene_or_params, extra=extra, n_frames=n_frames)
 
     def simulate(self, scene: Scene | np.ndarray, *, rng: np.random.Generator | int | None = None,
-                 size: int | tuple[int, ...] | None = None) -> np.ndarray:
-        """Noisy readings: response + N(0, sigma^2) noise, shape ``size + (N,)``."""
-        gen = as_rng(rng)
-        mu = self.response(scene)
-        sizes = () if size is None else (size,) if np.ndim(size) == 0 else tuple(size)
-        shape = tuple(integer("size", n, low=0) for n in sizes)
-        return mu + self.sigma * gen.standard_normal(shape + mu.shape)
+                 size: int | tuple[int, ...] | None = None,
+                 n_frames: int | None = None) -> np.ndarray:
+        """Noisy readings: shape ``size + (N,)``, or ``size + (F, N)`` for ``n_frames`` F."""
+        return measurement.simulate(self, scene, rng=rng, size=size, n_frames=n_frames)
 
     def canonical(self, params: np.ndarray) -> np.ndarray:
         """Wrap angles and sort sources by location: shape as ``params``."""
@@ -393,4 +391,7 @@ class Model(Frozen):
         return blocks.reshape(x.shape)
 
     def __repr__(self) -> str:
-        return f"Model({self.array!r}, sigma={self.sigma!r}, sensitivity={self.sensitivity!r})"
+        noise = "" if self.noise.is_default else f", noise={self.noise!r}"
+        extra = "" if self.nuisance.is_trivial else f", nuisance={self.nuisance!r}"
+        return (f"Model({self.array!r}, sigma={self.sigma!r}, sensitivity={self.sensitivity!r}"
+                f"{noise}{extra})")

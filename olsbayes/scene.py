@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import InitVar, dataclass, field
 
 import numpy as np
 
@@ -10,7 +10,10 @@ from ._validation import finite_array
 from .circular import wrap_angle
 from .errors import InputError
 
-__all__ = ["Scene"]
+__all__ = ["Scene", "ANGLE_UNITS"]
+
+#: Units a Scene accepts for ``directions`` (stored in rad whatever the unit given).
+ANGLE_UNITS = ("rad", "deg")
 
 
 @dataclass(frozen=True, eq=False)
@@ -20,12 +23,17 @@ class Scene:
     Parameters
     ----------
     directions : array_like, shape (K,) or (K, 2), optional
-        Ring: angles in rad (wrapped to (-pi, pi]).  Sphere: (longitude, latitude)
-        pairs in rad, latitude in [-pi/2, pi/2].
+        Ring: angles (wrapped to (-pi, pi]).  Sphere: (longitude, latitude) pairs,
+        latitude in [-pi/2, pi/2] (or [-90, 90] deg).  In ``unit``; stored in rad.
     intensities : array_like, shape (K,)
         Source intensities I[k] >= 0 (units of the sub-sensor reading).
     positions : array_like, shape (K, 3), optional
         Near sources (plate): 3-D positions, instead of ``directions``.
+    unit : {"rad", "deg"}
+        Unit of ``directions``.  Degrees must lie within one turn: ring angles and
+        longitudes in [-360, 360], latitudes in [-90, 90]; a value beyond (e.g.
+        370) is refused with :class:`~olsbayes.errors.InputError` instead of
+        wrapped.  The stored ``directions`` are in rad (wrapped to (-pi, pi]).
 
     Notes
     -----
@@ -36,10 +44,15 @@ class Scene:
     directions: np.ndarray | None = None
     intensities: np.ndarray = field(default_factory=lambda: np.zeros(0))
     positions: np.ndarray | None = None
+    unit: InitVar[str] = "rad"
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, unit: str = "rad") -> None:
         if (self.directions is None) == (self.positions is None):
             raise InputError("Scene needs exactly one of directions= and positions=")
+        if not isinstance(unit, str) or unit not in ANGLE_UNITS:
+            raise InputError(f"unit must be one of {ANGLE_UNITS}; got {unit!r}")
+        if unit == "deg" and self.positions is not None:
+            raise InputError("unit='deg' applies to directions; positions are lengths")
         inten = finite_array(
             "intensities", self.intensities, ndim=1, nonnegative=True, allow_empty=True
         )
@@ -50,6 +63,8 @@ class Scene:
         else:
             loc = finite_array("directions", self.directions, ndim=(1, 2), allow_empty=True)
             name = "directions"
+            if unit == "deg":
+                loc = _degrees_to_rad(loc)
             if loc.ndim == 2:
                 if loc.shape[1] != 2:
                     raise InputError(
@@ -116,3 +131,19 @@ class Scene:
             f"Scene({loc}={np.array2string(getattr(self, loc), precision=4)}, "
             f"intensities={np.array2string(self.intensities, precision=4)})"
         )
+
+
+def _degrees_to_rad(loc: np.ndarray) -> np.ndarray:
+    """Directions in deg -> rad, refusing values beyond one turn (or |latitude| > 90)."""
+    ang = loc if loc.ndim == 1 else loc[:, 0]
+    if ang.size and np.abs(ang).max() > 360.0:
+        what = "angles" if loc.ndim == 1 else "longitudes"
+        raise InputError(f"directions {what} in deg must lie in [-360, 360]; got "
+                         f"{float(ang[np.argmax(np.abs(ang))])!r}")
+    if loc.ndim == 2 and loc.shape[1] == 2 and loc.size and np.abs(loc[:, 1]).max() > 90.0:
+        raise InputError(f"directions latitudes in deg must lie in [-90, 90]; got "
+                         f"{float(loc[np.argmax(np.abs(loc[:, 1])), 1])!r}")
+    out = np.deg2rad(loc)
+    if loc.ndim == 2 and loc.shape[1] == 2:  # +-90 deg exactly: keep the pole inside the range
+        out[:, 1] = np.clip(out[:, 1], -np.pi / 2, np.pi / 2)
+    return out

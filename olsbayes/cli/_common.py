@@ -38,6 +38,7 @@ __all__ = [
     "add_config_args",
     "add_json_arg",
     "add_seed_arg",
+    "add_quiet_arg",
     "load_cli_config",
     "emit",
     "jsonable",
@@ -109,6 +110,13 @@ def add_json_arg(parser: argparse.ArgumentParser) -> None:
     """``--json``: machine-readable output on stdout."""
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object on stdout instead of tables")
+
+
+def add_quiet_arg(parser: argparse.ArgumentParser) -> None:
+    """``--quiet``: no progress bars or status lines on stderr (warnings still print)."""
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bars or status lines on stderr while long steps "
+                             "run (warnings and errors are still printed)")
 
 
 def add_seed_arg(parser: argparse.ArgumentParser, help: str = "random seed (>= 0)") -> None:

@@ -1,5 +1,7 @@
 """Exact Cramér-Rao lower bound of a scene (and the paper's Eq. 3 / Eq. 4 on a ring).
 
+Angles (directions and their bounds) are printed in the [scene] angle_unit.
+
 Example:
   olsbayes crlb                               # the built-in Fig. 3 scene
   olsbayes crlb scene.toml --json
@@ -30,38 +32,50 @@ def register(subparsers: Any) -> None:
     p.set_defaults(run=run)
 
 
-def _paper_bounds(model: Model, scene: Scene) -> dict[str, Any] | None:
-    """Eq. 3 per source and, for two sources, Eq. 4 -- ring geometry only."""
+def _deg(values: Any, unit: str) -> Any:
+    """Angles (rad) in ``unit``; None stays None."""
+    if values is None or unit != "deg":
+        return values
+    return np.rad2deg(np.asarray(values, dtype=float))
+
+
+def _paper_bounds(model: Model, scene: Scene, unit: str = "rad") -> dict[str, Any] | None:
+    """Eq. 3 per source and, for two sources, Eq. 4 -- ring geometry only; angles in unit."""
     if model.kind != "angle" or scene.n_sources == 0 or not hasattr(model.array, "n"):
         return None
     inten = np.where(scene.intensities > 0, scene.intensities, np.nan)
     th3 = 2.0 * model.sigma / (np.sqrt(model.n_sensors) * inten)
     out: dict[str, Any] = {
-        "eq3_direction_std": th3,
+        "eq3_direction_std": _deg(th3, unit),
         "eq3_intensity_std": crlb_eq3(model.n_sensors, model.sigma, 1.0)[1],
     }
     if scene.n_sources == 2:
         sep = float(abs(scene.directions[1] - scene.directions[0]))
         th4, i4 = crlb_eq4(model.n_sensors, model.sigma, scene.intensities, sep)
-        out.update(eq4_direction_std=th4, eq4_intensity_std=float(i4), separation=sep)
+        out.update(eq4_direction_std=_deg(th4, unit), eq4_intensity_std=float(i4),
+                   separation=_deg(sep, unit))
     return out
 
 
-def _truth(scene: Scene) -> dict[str, Any]:
-    key = "positions" if scene.kind == "position" else "directions"
-    return {key: getattr(scene, key), "intensities": scene.intensities}
+def _truth(scene: Scene, unit: str) -> dict[str, Any]:
+    if scene.kind == "position":
+        return {"positions": scene.positions, "intensities": scene.intensities}
+    return {"directions": _deg(scene.directions, unit), "intensities": scene.intensities}
 
 
-def crlb_payload(model: Model, scene: Scene, res: CRLBResult) -> dict[str, Any]:
-    """JSON-ready dictionary of a CRLB result."""
+def crlb_payload(model: Model, scene: Scene, res: CRLBResult, unit: str = "rad"
+                 ) -> dict[str, Any]:
+    """JSON-ready dictionary of a CRLB result; directions and their bounds in ``unit``."""
+    unit = unit if model.kind != "position" else "rad"
     payload: dict[str, Any] = {
         "model": repr(model),
         "n_sensors": model.n_sensors,
         "sigma": model.sigma,
         "kind": model.kind,
-        "truth": _truth(scene),
+        "angle_unit": unit,
+        "truth": _truth(scene, unit),
         "crlb": {
-            "direction_std": res.direction_std,
+            "direction_std": _deg(res.direction_std, unit),
             "position_std": res.position_std,
             "intensity_std": res.intensity_std,
             "condition": res.condition,
@@ -69,25 +83,27 @@ def crlb_payload(model: Model, scene: Scene, res: CRLBResult) -> dict[str, Any]:
         },
         "param_names": model.param_names(scene.n_sources),
     }
-    paper = _paper_bounds(model, scene)
+    paper = _paper_bounds(model, scene, unit)
     if paper is not None:
         payload["paper"] = paper
     return payload
 
 
-def crlb_text(model: Model, scene: Scene, res: CRLBResult) -> str:
-    """A readable table: truth and CRLB per source (plus Eq. 3 / 4 on a ring)."""
+def crlb_text(model: Model, scene: Scene, res: CRLBResult, unit: str = "rad") -> str:
+    """A readable table: truth and CRLB per source (plus Eq. 3 / 4 on a ring); angles in unit."""
+    unit = unit if model.kind != "position" else "rad"
     loc_names = {"angle": ["theta"], "lonlat": ["lon", "lat"], "position": ["x", "y", "z"]}[
         model.kind
     ]
-    loc_std = res.position_std if model.kind == "position" else res.direction_std
+    loc_std = res.position_std if model.kind == "position" else _deg(res.direction_std, unit)
     loc_std = np.asarray(loc_std).reshape(scene.n_sources, -1)
+    locations = np.asarray(_deg(scene.locations, unit))
     header = ["k", *loc_names, "I", *(f"sd({n})" for n in loc_names), "sd(I)"]
     rows = [
-        [k, *scene.locations[k], scene.intensities[k], *loc_std[k], res.intensity_std[k]]
+        [k, *locations[k], scene.intensities[k], *loc_std[k], res.intensity_std[k]]
         for k in range(scene.n_sources)
     ]
-    paper = _paper_bounds(model, scene)
+    paper = _paper_bounds(model, scene, unit)
     if paper is not None:
         header += ["Eq3 sd(theta)", "Eq3 sd(I)"]
         for k, row in enumerate(rows):
@@ -96,10 +112,10 @@ def crlb_text(model: Model, scene: Scene, res: CRLBResult) -> str:
             header += ["Eq4 sd(theta)", "Eq4 sd(I)"]
             for k, row in enumerate(rows):
                 row += [paper["eq4_direction_std"][k], paper["eq4_intensity_std"]]
-    unit = "rad" if model.kind != "position" else "length units"
+    where = unit if model.kind != "position" else "length units"
     lines = [
         f"{model!r}",
-        f"Exact CRLB (standard deviations; locations in {unit}); "
+        f"Exact CRLB (standard deviations; locations in {where}); "
         f"Fisher condition number {res.condition:.3g}",
         format_table(header, rows),
     ]
@@ -117,5 +133,6 @@ def run(args: argparse.Namespace) -> int:
     model = model_from_config(cfg)
     scene = scene_from_config(cfg, model)
     res = crlb(model, scene)
-    emit(args, crlb_payload(model, scene, res), crlb_text(model, scene, res))
+    unit = (cfg.get("scene") or {}).get("angle_unit", "rad")
+    emit(args, crlb_payload(model, scene, res, unit), crlb_text(model, scene, res, unit))
     return 0

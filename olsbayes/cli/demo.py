@@ -8,7 +8,8 @@ estimate, and the emcee posterior sd next to the CRLB with the model check
 the posterior report (corner plot with CRLB ellipses, traces, posterior
 predictive and residual panel, ML and truth tables, the Laplace evidence for
 K = 0..3 with p(K | data), NetCDF, report.html) to --out/posterior/.  Each part
-is printed as soon as it is computed.
+is printed as soon as it is computed; the posterior run shows a status line on
+stderr (steps, tau and the steps it asks for, R-hat) unless --quiet.
 
 Example:
   olsbayes demo
@@ -33,6 +34,7 @@ from ._common import (
     DEFAULT_CONFIG,
     add_command,
     add_json_arg,
+    add_quiet_arg,
     add_seed_arg,
     emit,
     output_dir,
@@ -55,6 +57,7 @@ def register(subparsers: Any) -> None:
                    help="skip the emcee posterior (and its report in DIR/posterior/)")
     p.add_argument("--print-config", action="store_true",
                    help="print the demo's TOML configuration and exit")
+    add_quiet_arg(p)
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -116,12 +119,13 @@ def run(args: argparse.Namespace) -> int:
         from ..select import select_k
 
         report = None if out is None else out / "posterior"
-        selection = select_k(model, data, 3, method="laplace", rng=sel_rng)
+        selection = select_k(model, data, 3, method="laplace", rng=sel_rng,
+                             progress=not args.quiet)
         payload["selection"] = selection.to_dict()
         say("", "Evidence for K = 0..3 sources:", selection.table())
         payload["posterior"], post_text = posterior_block(
             model, data, truth.n_sources, truth, post_rng, report=report, ml=fit,
-            selection=selection)
+            selection=selection, progress=not args.quiet)
         say(post_text)
         if report is not None:
             figs += [report / name for name in ("corner.png", "trace.png", "ppc.png",

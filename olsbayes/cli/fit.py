@@ -10,7 +10,9 @@ the posterior sd is printed next to the CRLB, with chi^2/dof and the posterior
 predictive p-value; --report DIR also writes corner, trace and posterior
 predictive plots, summary tables, the NetCDF posterior and report.html into DIR.
 The posterior lists its sources as the ML table does (source k is the ML
-estimate's source k), in the text, the JSON and every report file.
+estimate's source k), in the text, the JSON and every report file.  While the
+sampler runs, a status line on stderr shows the steps taken, the autocorrelation
+time tau with the steps it asks for and the last R-hat (--quiet: none).
 
 Without --seed a seed is drawn, printed and recorded in the outputs (JSON,
 report), with the package version, the SHA-256 of the readings (and of --data)
@@ -33,6 +35,7 @@ import numpy as np
 
 from .._provenance import draw_seed, file_sha256, provenance
 from ..build import data_from_config, model_from_config, scene_from_config
+from ..build_measurement import prior_from_config, sampler_options_from_config
 from ..circular import wrap_angle
 from ..config import read_readings
 from ..errors import InputError
@@ -42,11 +45,20 @@ from ._common import (
     add_command,
     add_config_args,
     add_json_arg,
+    add_quiet_arg,
     add_seed_arg,
     emit,
     format_table,
     load_cli_config,
     output_dir,
+)
+from ._measurement import (
+    FIT_SECTIONS,
+    as_frames,
+    extra_payload,
+    extra_text,
+    is_general,
+    pearson_chi2,
 )
 
 __all__ = ["register", "run", "fit_payload", "fit_text", "batch_text", "load_fit_inputs",
@@ -73,13 +85,14 @@ def register(subparsers: Any) -> None:
                         " implies --posterior")
     p.add_argument("--max-steps", type=int, default=20000, metavar="S",
                    help="step cap of the emcee run (default 20000)")
+    add_quiet_arg(p)
     add_json_arg(p)
     p.set_defaults(run=run)
 
 
 def load_fit_inputs(args: argparse.Namespace) -> tuple[Model, Scene | None, np.ndarray, int]:
     """(model, truth scene or None, readings, K) from CONFIG, --data, --n-sources."""
-    cfg = load_cli_config(args, required=("sensor",))
+    cfg = load_cli_config(args, FIT_SECTIONS, required=("sensor",))
     model = model_from_config(cfg)
     truth = scene_from_config(cfg, model) if "scene" in cfg else None
     if args.data is not None:
@@ -103,7 +116,7 @@ def load_fit_inputs(args: argparse.Namespace) -> tuple[Model, Scene | None, np.n
 
 def angle_unit_of(args: argparse.Namespace) -> str:
     """The [scene] angle_unit of the command's configuration ("rad" or "deg")."""
-    cfg = load_cli_config(args, required=("sensor",))
+    cfg = load_cli_config(args, FIT_SECTIONS, required=("sensor",))
     return (cfg.get("scene") or {}).get("angle_unit", "rad")
 
 
@@ -230,12 +243,14 @@ def batch_text(model: Model, result: Any, truth: Scene | None, std: np.ndarray,
     return format_table(header, rows)
 
 
-def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
+def _check_posterior_args(args: argparse.Namespace, data: np.ndarray,
+                          frames: bool = False) -> None:
     """Contradictory or out-of-range posterior options fail before any fitting."""
-    if data.ndim != 1:
+    if data.ndim != (2 if frames else 1):
         raise InputError(
             f"--posterior/--report fit one measurement; the readings hold {data.shape[0]} "
-            "rows (give a file with one row)"
+            "rows (give a file with one row, or [noise] frames = true for frames of one "
+            "scene)"
         )
     if not 1 <= args.max_steps <= 10_000_000:
         raise InputError(f"--max-steps must be in [1, 10000000]; got {args.max_steps}")
@@ -246,18 +261,24 @@ def _check_posterior_args(args: argparse.Namespace, data: np.ndarray) -> None:
 def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None, rng: Any,
                     max_steps: int = 20000, report: Path | None = None, *, ml: Any = None,
                     unit: str = "rad", metadata: dict[str, Any] | None = None,
-                    selection: Any = None) -> tuple[dict[str, Any], str]:
+                    selection: Any = None, priors: Any = None, options: Any = None,
+                    frames: bool = False, progress: bool = True
+                    ) -> tuple[dict[str, Any], str]:
     """Sample the posterior (and write the report into ``report``): payload and text.
 
     ``ml`` (the MLResult printed above) is the walkers' start, so the posterior
     labels its sources as the ML table does; angles are printed in ``unit``.
-    ``selection`` (a SelectionResult) adds p(K | data) to the report.
+    ``selection`` (a SelectionResult) adds p(K | data) to the report.  ``priors``
+    (a ScenePrior), ``options`` (SamplerOptions, default ``max_steps``) and ``frames``
+    go to :func:`olsbayes.posterior.sample`.  ``progress``: the sampler's status
+    line on stderr.
     """
     from ..posterior import SamplerOptions, sample
 
     folder = None if report is None else output_dir(report, "--report")
-    post = sample(model, data, k, start=ml, options=SamplerOptions(max_steps=max_steps),
-                  rng=rng, progress=False)
+    opts = SamplerOptions(max_steps=max_steps) if options is None else options
+    post = sample(model, data, k, priors=priors, start=ml, options=opts, rng=rng,
+                  progress=progress, frames=frames)
     check, mc = post.crlb_check(), post.model_check()
     names = list(post.names)
 
@@ -300,20 +321,28 @@ def run(args: argparse.Namespace) -> int:
 
     model, truth, data, k = load_fit_inputs(args)
     unit = angle_unit_of(args)
+    cfg = load_cli_config(args, FIT_SECTIONS, required=("sensor",))
+    data, frames = as_frames(cfg, model, data)
+    general = is_general(model, frames)
     want_posterior = args.posterior or args.report is not None
     if want_posterior:
-        _check_posterior_args(args, data)
+        _check_posterior_args(args, data, frames)
     # --seed S simulates exactly the readings of `olsbayes simulate --seed S`; the
     # optimiser and the sampler get independent child streams of the same seed (drawn,
     # printed and recorded when not given; --seed S would also reseed a [data] simulation)
     seed = args.seed if args.seed is not None else draw_seed()
     ml_rng, post_rng = np.random.SeedSequence(seed).spawn(2)
-    result = fit_ml(model, data, k, method=args.method, rng=ml_rng)
+    result = fit_ml(model, data, k, method=args.method, rng=ml_rng, frames=frames)
     record = provenance(seed=seed, data=data)
     if args.data is not None:
         record.update(data_file=str(args.data), data_file_sha256=file_sha256(args.data))
     std = result.std  # once: (T, P) for a batch
-    payload = fit_payload(model, result, truth, data, unit, std)
+    payload = fit_payload(model, result, truth, None if general else data, unit, std)
+    if general:
+        chi2, dof = pearson_chi2(model, result, data, frames), (model.n_sensors - std.shape[-1]
+                                                         - len(result.extra_names))
+        payload.update(chi2=chi2, dof=dof, chi2_dof=chi2 / dof if dof > 0 else np.nan,
+                       frames=data.shape[0] if frames else None, **extra_payload(result))
     payload["provenance"] = record
     chi = np.atleast_1d(payload["chi2_dof"])
     if args.json:
@@ -324,6 +353,8 @@ def run(args: argparse.Namespace) -> int:
         blocks = [f"log-likelihood {float(result.log_likelihood):.6g}, chi^2/dof "
                   f"{float(chi[0]):.4g} (dof {payload['dof']})\n"
                   + fit_text(model, result, truth, unit=unit)]
+        if general and extra_text(result):
+            blocks.append(extra_text(result))
     head = (f"{model!r}\nML fit ({result.method}) of K = {k} source(s); sd = Fisher "
             "(CRLB) at the estimate; locations in "
             + (unit if model.kind != "position" else "length units")
@@ -333,7 +364,10 @@ def run(args: argparse.Namespace) -> int:
         payload["posterior"], text = posterior_block(
             model, data, k, truth, post_rng, args.max_steps, args.report, ml=result,
             unit=unit, metadata={key: record[key] for key in ("data_file", "data_file_sha256")
-                                 if key in record})
+                                 if key in record},
+            priors=prior_from_config(cfg, model, k, data, frames),
+            options=sampler_options_from_config(cfg, args.max_steps), frames=frames,
+            progress=not args.quiet)
         blocks.append(text)
     emit(args, payload, "\n".join([head, *blocks]))
     return 0

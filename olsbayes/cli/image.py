@@ -9,7 +9,8 @@ prior_bright, restarts); a setting the prior does not use is an error.
 
 Prints the design's rank and null space size and, per direction, the posterior
 mean, sd, credible interval and how much of it the array cannot see
-(null fraction); --figure PATH draws true sources / raw readings / estimate /
+(null fraction); the samplers show a progress bar on stderr (--quiet: none);
+--figure PATH draws true sources / raw readings / estimate /
 posterior sd on sky maps (sphere arrays), or intensity against angle (rings).
 
 The bounded prior takes its upper bound i_max from the readings
@@ -52,6 +53,7 @@ from ._common import (
     add_command,
     add_config_args,
     add_json_arg,
+    add_quiet_arg,
     add_seed_arg,
     emit,
     format_table,
@@ -110,6 +112,7 @@ def register(subparsers: Any) -> None:
                    help="write the figure (sky maps for a sphere, intensity against angle "
                         "for a ring) to this PNG file")
     add_seed_arg(p, help="seed of the sampler and of a [data] simulation")
+    add_quiet_arg(p)
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -222,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
                              "near sources have none")
         output_file(args.figure, "--figure")
     seed = args.seed if args.seed is not None else draw_seed()
-    res = image(model, data, dirs, prior, options=options, rng=seed)
+    res = image(model, data, dirs, prior, options=options, rng=seed, progress=not args.quiet)
     unit = sec.get("_angle_unit", "rad")
     payload = _payload(res, truth, unit)
     record = provenance(seed=seed, data=data)

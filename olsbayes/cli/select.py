@@ -4,7 +4,9 @@ Readings come from --data FILE, else from the config's [data] section (a file or
 a simulation of [scene]).  Options come from the command line, else from an
 optional [select] section (k_max, method, i_max, maxcall, tie).  Prints, per
 reading row, a table of K, log Z, its error, the estimator and p(K | data), the
-K sent to nested sampling and why.
+K sent to nested sampling and why.  Long steps (importance and nested sampling)
+show a status line on stderr (--quiet: none).  The ML points in the JSON (``params``) give
+angles in the [scene] angle_unit.
 
 Example:
   olsbayes select                              # the built-in Fig. 3 scene
@@ -23,7 +25,15 @@ from ..build import data_from_config, model_from_config, scene_from_config
 from ..config import Field, Section, read_readings, register_section
 from ..errors import InputError
 from ..select import METHODS, DecisionOptions, NestedOptions, SelectOptions, select_k
-from ._common import add_command, add_config_args, add_json_arg, add_seed_arg, emit, load_cli_config
+from ._common import (
+    add_command,
+    add_config_args,
+    add_json_arg,
+    add_quiet_arg,
+    add_seed_arg,
+    emit,
+    load_cli_config,
+)
 
 __all__ = ["register", "run"]
 
@@ -59,6 +69,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--maxcall", type=int, default=None, metavar="M",
                    help="likelihood-call cap per nested-sampling run (default 300000)")
     add_seed_arg(p, help="seed of the ML restarts, nested sampling and a [data] simulation")
+    add_quiet_arg(p)
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -75,6 +86,16 @@ def _options(args: argparse.Namespace, cfg: Any) -> dict[str, Any]:
     if opts["i_max"] is not None and not (math.isfinite(opts["i_max"]) and opts["i_max"] > 0):
         raise InputError(f"--i-max must be a finite number > 0; got {opts['i_max']!r}")
     return opts
+
+
+def _in_unit(model: Any, result: dict[str, Any], unit: str) -> dict[str, Any]:
+    """A selection's JSON with the angles of every candidate's ML point in ``unit``."""
+    from .fit import in_unit
+
+    for cand in result["candidates"]:
+        if cand["params"] and cand.get("names"):
+            cand["params"] = in_unit(model, cand["names"], cand["params"], unit).tolist()
+    return result
 
 
 def run(args: argparse.Namespace) -> int:
@@ -98,9 +119,11 @@ def run(args: argparse.Namespace) -> int:
     settings = SelectOptions(nested=NestedOptions(maxcall=opts["maxcall"]),
                              decision=DecisionOptions(tie=opts["tie"]))
     results = [select_k(model, row, opts["k_max"], i_max=opts["i_max"], method=opts["method"],
-                        options=settings, rng=args.seed) for row in rows]
-    payload: dict[str, Any] = {"model": repr(model), "options": opts,
-                               "results": [r.to_dict() for r in results]}
+                        options=settings, rng=args.seed, progress=not args.quiet)
+               for row in rows]
+    unit = (cfg.get("scene") or {}).get("angle_unit", "rad")
+    payload: dict[str, Any] = {"model": repr(model), "options": opts, "angle_unit": unit,
+                               "results": [_in_unit(model, r.to_dict(), unit) for r in results]}
     if truth is not None:
         payload["true_k"] = truth.n_sources
     lines = [repr(model)]

@@ -50,7 +50,7 @@ from typing import Any
 
 from ..config import Field, Section, load_config, register_section
 from ..errors import ConfigError, InputError
-from ..studies import ESTIMATORS, EXECUTORS, run_study
+from ..studies import ESTIMATORS, EXECUTORS, dataset_seed, run_study
 from ._common import _parse_override, add_command, add_json_arg, emit, format_table
 
 __all__ = ["register", "run", "load_study_config", "estimator_help", "BUILTIN_TRIALS"]
@@ -113,7 +113,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--out", type=Path, default=None, help="NetCDF result file")
     p.add_argument("--resume", action="store_true",
                    help="continue the study in the [study] checkpoint file")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.add_argument("--quiet", "--no-progress", dest="no_progress", action="store_true",
+                   help="hide the progress bar")
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -205,10 +206,11 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         raise ConfigError(f"{args.config}: {exc}") from None
     header, rows = _summary(ds)
-    payload = {"out": str(out), "seed": ds.attrs["seed"], "n_trials": int(ds.attrs["n_trials"]),
+    seed = dataset_seed(ds)
+    payload = {"out": str(out), "seed": seed, "n_trials": int(ds.attrs["n_trials"]),
                "dims": {k: int(v) for k, v in ds.sizes.items()}, "header": header,
                "rows": rows}
-    text = (f"study {ds.attrs['trial_function']}: {dict(ds.sizes)}, seed {ds.attrs['seed']}\n"
+    text = (f"study {ds.attrs['trial_function']}: {dict(ds.sizes)}, seed {seed}\n"
             f"{format_table(header, rows)}\nwritten: {out}")
     emit(args, payload, text)
     return 0

@@ -24,6 +24,7 @@ or keys, wrong types, non-finite or huge numbers and malformed TOML all raise
 :class:`~olsbayes.errors.ConfigError` naming the key and the accepted keys.
 """
 
+from . import measurement_sections as _measurement  # noqa: F401  ([noise], [prior] ...)
 from . import sections as _sections  # noqa: F401  (registers [sensor], [scene], [data])
 from .loader import load_config, parse_config
 from .readings import read_readings

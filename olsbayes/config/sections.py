@@ -21,7 +21,8 @@ register_section(Section(
     fields={
         "geometry": Field("str", required=True, choices=("ring", "sphere", "plate", "custom"),
                           doc="ring, sphere, plate or custom"),
-        "sigma": Field("float", required=True, positive=True, doc="noise std of one sub-sensor"),
+        "sigma": Field("float", positive=True,
+                       doc="noise std of one sub-sensor (required unless [noise] gives it)"),
         "sensitivity": Field("str", default="cosine",
                              choices=("cosine", "costn", "cosine_power"),
                              doc="angular law"),

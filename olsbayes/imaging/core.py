@@ -27,6 +27,7 @@ from scipy.optimize import lsq_linear
 from scipy.special import ndtri
 from threadpoolctl import threadpool_limits
 
+from .._progress import progress_bar
 from .._validation import as_rng, finite_array
 from ..errors import ConvergenceWarning, InputError, NullSpaceWarning, PriorBoundWarning
 from ..model import Model
@@ -52,6 +53,7 @@ def image(
     *,
     options: ImageOptions | None = None,
     rng: np.random.Generator | int | None = None,
+    progress: bool = True,
 ) -> ImageResult:
     """Posterior of the intensities of sources at known directions.
 
@@ -74,6 +76,9 @@ def image(
         uses (:mod:`olsbayes.imaging.options`).
     rng : Generator or seed, optional
         Random stream of the samplers and of the two-level restarts.
+    progress : bool
+        A progress bar on stderr while a sampler or the two-level search runs
+        (shown after a few seconds).
 
     Returns
     -------
@@ -97,16 +102,18 @@ def image(
     if opts.reference is not None and len(opts.reference) != loc.shape[0]:
         raise InputError(f"reference must have shape ({loc.shape[0]},) (one intensity per "
                          f"direction); got ({len(opts.reference)},)")
+    if not isinstance(progress, (bool, np.bool_)):
+        raise InputError(f"progress must be True or False; got {progress!r}")
     gen = as_rng(rng)
     # The matrices here are small (K <= a few hundred): BLAS threads only add
     # synchronisation, and on a busy machine oversubscription; one thread makes
     # the cost independent of the BLAS thread setting.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _image(model, loc, y, prior, opts, gen)
+        return _image(model, loc, y, prior, opts, gen, bool(progress))
 
 
 def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
-           opts: ImageOptions, gen: np.random.Generator) -> ImageResult:
+           opts: ImageOptions, gen: np.random.Generator, progress: bool) -> ImageResult:
     """:func:`image` on checked inputs."""
     a = design_matrix(model, loc)
     prior = with_data_bound(prior, a, y, model.sigma)
@@ -116,7 +123,7 @@ def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
         return _gaussian(a, y, model.sigma, design, prior, opts.level)
     mode = lsq_linear(a, y, bounds=(0.0, prior.upper), method="bvls").x
     if isinstance(prior, TwoLevel):
-        return _two_level(model, loc, a, y, mode, design, prior, opts, gen)
+        return _two_level(model, loc, a, y, mode, design, prior, opts, gen, progress)
     if opts.n_samples == 0:
         nan = np.full(mode.shape[0], np.nan)
         hi = prior.upper
@@ -126,7 +133,7 @@ def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
                            sd=nan, lower=nan, upper=nan, level=opts.level, design=design,
                            rhat=float("nan"), sampler="mode-only", i_max=_i_max(prior),
                            at_bound=at)
-    return _sampled(model, loc, a, y, mode, design, prior, opts, gen)
+    return _sampled(model, loc, a, y, mode, design, prior, opts, gen, progress)
 
 
 def _i_max(prior: ImagingPrior) -> float | None:
@@ -193,7 +200,7 @@ def _gaussian(a, y, sigma, design, prior, level):
     )
 
 
-def _two_level(model, loc, a, y, mode, design, prior, opts, gen):
+def _two_level(model, loc, a, y, mode, design, prior, opts, gen, progress):
     """Best local optimum of the MAP search from the rounded mode, L1 relaxation and restarts."""
     i_max, ref = prior.i_max, opts.reference
     ref = None if ref is None else np.asarray(ref, dtype=float)
@@ -203,11 +210,14 @@ def _two_level(model, loc, a, y, mode, design, prior, opts, gen):
     starts = [mode, relaxed] + [
         i_max * (gen.random(relaxed.shape[0]) < relaxed / i_max) for _ in range(opts.restarts)
     ]
-    for start in starts:
-        run = two_level_map(a, y, model.sigma, i_max, start, p_bright=prior.p_bright,
-                            groups=groups, reference=ref)
-        if best is None or run.log_posterior > best.log_posterior:
-            best = run
+    with progress_bar(enabled=progress, desc="two-level MAP search", unit=" starts",
+                      total=len(starts)) as bar:
+        for start in starts:
+            run = two_level_map(a, y, model.sigma, i_max, start, p_bright=prior.p_bright,
+                                groups=groups, reference=ref)
+            if best is None or run.log_posterior > best.log_posterior:
+                best = run
+            bar.update(1)
     nan = np.full(mode.shape[0], np.nan)
     return ImageResult(prior=prior.name, directions=design.directions, mean=best.x,
                        mode=best.x, sd=nan, lower=nan, upper=nan, level=opts.level,
@@ -215,19 +225,22 @@ def _two_level(model, loc, a, y, mode, design, prior, opts, gen):
                        i_max=float(i_max))
 
 
-def _sampled(model, loc, a, y, mode, design, prior, opts, gen):
+def _sampled(model, loc, a, y, mode, design, prior, opts, gen, progress):
     """Draws of the box / spike-and-slab posterior from chains started around the mode."""
     hi, scale, sigma = prior.upper, prior.scale, model.sigma
     x0 = _starts(mode, opts.n_chains, hi, scale, gen)
     acc = 1.0
-    if opts.sampler == "gibbs":
-        draws = _gibbs(model, loc, a, y, x0, prior, opts, gen)
-    else:
-        draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen, design)
+    with progress_bar(enabled=progress, desc=f"imaging ({opts.sampler}, {opts.n_chains} chains)",
+                      unit=" sweeps", total=opts.n_burn + opts.n_samples) as bar:
+        if opts.sampler == "gibbs":
+            draws = _gibbs(model, loc, a, y, x0, prior, opts, gen, bar.update)
+        else:
+            draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen,
+                              design, bar.update)
     return _from_draws(prior.name, draws, mode, design, opts, hi, acc)
 
 
-def _gibbs(model, loc, a, y, x0, prior, opts, gen):
+def _gibbs(model, loc, a, y, x0, prior, opts, gen, step):
     spike = isinstance(prior, Sparse)
     extra = {}
     if spike:  # dim sources of the jittered mode start in the spike
@@ -238,7 +251,8 @@ def _gibbs(model, loc, a, y, x0, prior, opts, gen):
                                         model.sigma)
     run = gibbs_intensities(a, y, model.sigma, prior.upper, x0, opts.n_samples, rng=gen,
                             n_burn=opts.n_burn, spike=spike,
-                            pairs=neighbour_pairs(model, loc, opts.neighbours), **extra)
+                            pairs=neighbour_pairs(model, loc, opts.neighbours), step=step,
+                            **extra)
     return run.samples
 
 
@@ -249,7 +263,7 @@ def _starts(mode, n_chains, hi, scale, gen):
     return np.minimum(x0, hi - 1e-6 * scale) if np.isfinite(hi) else x0
 
 
-def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design):
+def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design, step):
     """Exact HMC; a ridge surrogate (then Metropolis-corrected) where A^T A is near singular."""
     q = a.T @ a / sigma**2
     b = a.T @ y / sigma**2
@@ -258,7 +272,7 @@ def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design):
     ridge = 0.0 if full else 1.0 / scale**2
     run = sample_truncated_gaussian(
         q, b, np.zeros(k), np.full(k, hi), x0, n_samples, rng=gen, n_burn=n_burn, ridge=ridge,
-        centre=np.full(k, 0.5 * scale),
+        centre=np.full(k, 0.5 * scale), step=step,
     )
     return run.samples, run.acceptance
 

@@ -18,6 +18,7 @@ together (vectorised over chains); the residual is kept up to date in O(N).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,6 +109,7 @@ def gibbs_intensities(
     thin: int = 1,
     pairs: np.ndarray | None = None,
     windows: WindowMoves | None = None,
+    step: Callable[[], object] | None = None,
 ) -> GibbsSamples:
     """Run the single-site Gibbs sampler (random scan order per sweep).
 
@@ -173,4 +175,6 @@ def gibbs_intensities(
         if kept >= 0 and kept % thin == 0:
             out[:, kept // thin] = x
             w_out[:, kept // thin] = w
+        if step is not None:
+            step()
     return GibbsSamples(out, w_out)

@@ -26,6 +26,7 @@ inversion in log space (accurate far in the tails).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -153,6 +154,7 @@ def sample_truncated_gaussian(
     centre: np.ndarray | None = None,
     t_total: float = np.pi / 2,
     max_bounces: int = 20_000,
+    step: Callable[[], object] | None = None,
 ) -> TruncatedSamples:
     """Exact HMC draws of ``exp(-x^T Q x / 2 + b^T x)`` on a box.
 
@@ -175,6 +177,8 @@ def sample_truncated_gaussian(
         Centre of the ridge (default 0).
     t_total : float
         Trajectory length (pi/2 decorrelates the untruncated Gaussian fully).
+    step : callable, optional
+        Called after every trajectory (a progress bar's ``update``).
     """
     k = precision.shape[0]
     centre = np.zeros(k) if centre is None else centre
@@ -202,4 +206,6 @@ def sample_truncated_gaussian(
         bounces += int(nb.sum())
         if it >= n_burn:
             out[:, it - n_burn] = x
+        if step is not None:
+            step()
     return TruncatedSamples(out, n_acc / n_traj, bounces / n_traj)

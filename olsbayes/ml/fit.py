@@ -12,6 +12,7 @@ from .._budget import check_memory
 from .._validation import as_rng
 from ..bounds import SINGULAR_RTOL, bound_covariance
 from ..errors import ConvergenceWarning, InputError, MultimodalWarning
+from ..measurement import is_plain
 from ..model import Model
 from .atoms import cached_default_grid, check_atom_memory, check_grid, default_grid_size
 from .exact import check_exact, enumerate_optimum
@@ -125,15 +126,19 @@ def fit_ml(
     grid: np.ndarray | None = None,
     rng: np.random.Generator | int | None = None,
     warn: bool = True,
+    frames: bool = False,
 ) -> MLResult:
     """Maximum-likelihood fit of ``n_sources`` sources (Eq. 2), one or many data vectors.
 
     Parameters
     ----------
     model : Model
-        Forward model (array, noise sigma, sensitivity law); ring, sphere or plate.
-    data : array_like, shape (N,) or (T, N)
-        Readings.  A 2-D array fits T independent data vectors in one vectorised call.
+        Forward model (array, noise model, nuisance terms, sensitivity law); ring,
+        sphere or plate.  Noise other than Gaussian of known sigma, nuisance terms
+        and frames are fitted through a Gaussian surrogate and damped Fisher scoring
+        (:mod:`olsbayes.ml.general`).
+    data : array_like, shape (N,) or (T, N); with frames (F, N) or (T, F, N)
+        Readings.  A batch fits T independent data vectors in one vectorised call.
     n_sources : int
         Number K of sources, 1 <= K and K (d + 1) <= N.
     method : {"fast", "multistart", "exact"}
@@ -163,6 +168,9 @@ def fit_ml(
         a standard error is infinite or NaN, :class:`~olsbayes.errors.MultimodalWarning`
         when a distinct local optimum is within 3 of a fit's log-likelihood
         (``MLResult.rival_gap``).  Warnings never change the result.
+    frames : bool
+        The data's second-to-last axis holds F frames of one static scene, fitted
+        jointly (Poisson: one exposure per frame when the model's exposure is a vector).
 
     Returns
     -------
@@ -177,6 +185,10 @@ def fit_ml(
         far from sigma), n_sources, method, options (of another method, or out of
         range) or grid; more rows than the memory budget (:mod:`olsbayes._budget`).
     """
+    if frames is not False or (isinstance(model, Model) and not is_plain(model)):
+        from .general import fit_general
+        return fit_general(model, data, n_sources, method, options=options, grid=grid,
+                           rng=rng, warn=warn, frames=frames)
     arr, k = check_fit_inputs(model, data, n_sources)
     opts = _check_options(model, k, method, options)
     # deterministic methods: validate an rng given, but draw no OS entropy for None

@@ -56,6 +56,14 @@ class MLResult:
         Number K of sources fitted.
     model : Model
         The model fitted (used by :attr:`scene`).
+    extra : ndarray, shape (Q,) or (T, Q)
+        Estimates of the extra parameters the model infers (an unknown sigma,
+        background, gains, offsets; :func:`olsbayes.measurement.extra_names`);
+        empty for the default model.
+    extra_std : ndarray, shape (Q,) or (T, Q)
+        Their Fisher standard errors (nuisance priors included).
+    extra_names : tuple of str
+        Names of the extra parameters.
     """
 
     params: np.ndarray
@@ -67,10 +75,13 @@ class MLResult:
     method: str
     n_sources: int
     model: Model = field(repr=False)
+    extra: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    extra_std: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    extra_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("params", "log_likelihood", "converged", "n_evaluations", "cov",
-                     "rival_gap"):
+                     "rival_gap", "extra", "extra_std"):
             arr = np.array(getattr(self, name))
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)

@@ -84,4 +84,5 @@ def _image_once() -> None:
     directions = np.linspace(-np.pi, np.pi, 6, endpoint=False)
     data = model.response(np.column_stack([directions, np.full(6, 0.5)]).ravel())
     image(model, data, directions, Bounded(i_max=1.0),
-          options=ImageOptions(n_samples=4, n_burn=2, n_chains=2, window=3), rng=0)
+          options=ImageOptions(n_samples=4, n_burn=2, n_chains=2, window=3), rng=0,
+          progress=False)

@@ -92,7 +92,15 @@ _UNITS = {"theta": ("rad", "source direction (ring angle)"),
           "y": ("length unit of the array", "source position y"),
           "z": ("length unit of the array", "source height z above the plate"),
           "I": ("reading units", "source intensity"),
-          "sigma": ("reading units", "noise sd of one sub-sensor")}
+          "sigma": ("reading units", "noise sd of one sub-sensor"),
+          "b": ("intensity units", "diffuse background"),
+          "g": ("", "sub-sensor gain"), "o": ("reading units", "sub-sensor offset")}
+#: Variables indexed by sub-sensor (dim ``sensor``), not by source.
+_PER_SENSOR = ("g", "o")
+
+
+def _dim(base: str) -> str:
+    return "sensor" if base in _PER_SENSOR else "source"
 _TWO_PI = 2.0 * np.pi
 
 
@@ -153,9 +161,10 @@ def _by_variable(values: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
 def _dims_coords(post: dict, names: list[str], constants: dict, n_sensors: int,
                  n_walkers: int) -> tuple[dict, dict]:
     """Named dims and coordinates of every variable (see :func:`to_inference_data`)."""
-    k = max((i + 1 for _, i in split_names(names) if i is not None), default=0)
+    k = max((i + 1 for b, i in split_names(names) if i is not None and _dim(b) == "source"),
+            default=0)
     p = len(names)
-    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
+    dims = {b: [_dim(b)] for b, v in post.items() if v.ndim == 3}
     dims.update({"obs": ["sensor"], "normals": ["sensor", "axis"],
                  "positions": ["sensor", "axis"]})
     for key, value in constants.items():
@@ -254,7 +263,7 @@ def posterior_array(idata, names: list[str]) -> np.ndarray:
     cols = []
     for base, idx in split_names(names):
         var = post[base]
-        cols.append((var if idx is None else var.isel(source=idx)).values)
+        cols.append((var if idx is None else var.isel({_dim(base): idx})).values)
     return np.stack(cols, axis=-1)
 
 
@@ -265,7 +274,7 @@ def summary_frame(draws: np.ndarray, names: list[str], hdi_prob: float = 0.94):
     """
     az = import_arviz()
     post = _by_variable(np.asarray(draws, dtype=float), names)
-    dims = {b: ["source"] for b, v in post.items() if v.ndim == 3}
+    dims = {b: [_dim(b)] for b, v in post.items() if v.ndim == 3}
     with _known_shapes():
         idata = az.from_dict(posterior=post, dims=dims)
         frame = az.summary(idata, hdi_prob=hdi_prob, round_to="none")

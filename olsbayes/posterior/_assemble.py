@@ -18,6 +18,7 @@ from ..circular import circular_mean
 from ..errors import ConvergenceWarning
 from ..model import Model
 from ..priors import ScenePrior
+from . import _general
 from ._arviz import to_inference_data
 from ._labels import block_index, dominant_permutation, relabel
 from ._logpost import LogPosterior
@@ -108,32 +109,49 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
         perm, switch = dominant_permutation(perms)
         tau = tau[block_index(perm, w, prior.n_params)]  # tau of the relabelled parameters
     estimate = _point_estimate(x, prior)
-    crlb_cov = crlb_covariance(model, prior, estimate)
+    general = logpost.general
+    n_frames = data.shape[-2] if logpost.frames else None
+    crlb_cov = (_general.crlb_covariance(model, prior, estimate, n_frames) if general
+                else crlb_covariance(model, prior, estimate))
     acceptance = np.asarray(sampler.acceptance_fraction)
-    constants = {"normals": model.array.normals, "crlb_cov": crlb_cov, "estimate": estimate,
-                 "tau": tau, "acceptance_fraction": acceptance}
-    if centre is not None:
-        constants["start"] = centre
-    if model.array.positions is not None:
-        constants["positions"] = model.array.positions
-    if prior.noise is None:
-        constants["sigma"] = np.array(model.sigma)
+    constants = _constants(model, prior, centre, n_frames, crlb_cov=crlb_cov,
+                           estimate=estimate, tau=tau, acceptance_fraction=acceptance)
     attrs = {"inference_library": "emcee", "inference_library_version": emcee.__version__,
              "olsbayes_version": __version__, "kind": model.kind,
              "n_sources": prior.n_sources, "n_burn": n_burn, "thin": thin, "n_steps": n_steps,
              "parameter_names": " ".join(prior.param_names),
              **{k: v for k, v in (run_attrs or {}).items() if v is not None}}
     prior_draws = prior.sample((1, PRIOR_DRAWS), rng=gen_prior)
+    if general:
+        observed = _general.statistic(model, data, logpost.frames)
+        replicas = _general.predictive(model, prior, x, gen_prior, n_frames)
+    else:
+        observed, replicas = data, predictive_draws(model, prior, x, gen_prior)
     idata = to_inference_data(
         x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),
-        accepted=moved.T, pointwise=logpost.pointwise(x), data=data, constants=constants,
+        accepted=moved.T, pointwise=logpost.pointwise(x), data=observed, constants=constants,
         attrs=attrs, periodic=prior.periodic, centre=estimate,
-        predictive=predictive_draws(model, prior, x, gen_prior), prior_draws=prior_draws)
+        predictive=replicas, prior_draws=prior_draws)
     return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,
                 names=tuple(prior.param_names), estimate=estimate, crlb_cov=crlb_cov,
                 start=centre, tau=tau, n_steps=n_steps, n_burn=n_burn, thin=thin,
                 acceptance_fraction=acceptance, switch_fraction=switch,
                 at_bound=at_prior_bound(x, prior) if options.use_likelihood else ())
+
+
+def _constants(model: Model, prior: ScenePrior, centre: np.ndarray | None,
+               n_frames: int | None, **arrays: np.ndarray) -> dict:
+    """The InferenceData's constant_data: ``arrays`` plus the array's and the noise's."""
+    constants = {"normals": model.array.normals, **arrays}
+    if centre is not None:
+        constants["start"] = centre
+    if model.array.positions is not None:
+        constants["positions"] = model.array.positions
+    if prior.noise is None and model.noise.is_default:
+        constants["sigma"] = np.array(model.sigma)
+    if n_frames is not None:
+        constants["n_frames"] = np.array(n_frames)
+    return constants
 
 
 def crlb_covariance(model: Model, prior: ScenePrior, x: np.ndarray) -> np.ndarray:

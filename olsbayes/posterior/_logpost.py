@@ -22,6 +22,7 @@ import numpy as np
 
 from ..circular import largest_gap_cut, wrap_angle
 from ..priors import LogUniform, ScenePrior
+from . import _general
 
 __all__ = ["LogPosterior", "cut_shift"]
 
@@ -60,12 +61,19 @@ class LogPosterior:
         log-uniform prior are ``z = log x`` instead (their shift must be 0).
     use_likelihood : bool
         False samples the prior (used to test the sampler).
+    frames : bool
+        ``data`` holds frames (F, N) of one scene.
+
+    Models with other noise, nuisance terms or frames evaluate their likelihood
+    through :mod:`olsbayes.posterior._general` (extras after the sources).
     """
 
     def __init__(self, model, data: np.ndarray, prior: ScenePrior, shift: np.ndarray,
-                 use_likelihood: bool = True):
+                 use_likelihood: bool = True, frames: bool = False):
         self.model = model
         self.data = np.asarray(data, dtype=float)
+        self.frames = bool(frames)
+        self.general = _general.is_general(model, prior, self.frames)
         self.prior = prior
         self.shift = np.asarray(shift, dtype=float)
         self.periodic = prior.periodic
@@ -81,6 +89,9 @@ class LogPosterior:
         with np.errstate(divide="ignore"):
             self._lo = np.where(self.log_scale, np.log(np.maximum(lo, 0.0)), lo)
             self._hi = np.where(self.log_scale, np.log(np.maximum(hi, 0.0)), hi)
+        sig = float(model.sigma)  # the known-noise constants of log_likelihood
+        self._var = sig**2
+        self._log_norm = model.n_sensors * (np.log(sig) + 0.5 * _LOG_2PI)
 
     def _x_of(self, z: np.ndarray) -> np.ndarray:
         """Parameters of sampler coordinates (angles not wrapped)."""
@@ -112,19 +123,23 @@ class LogPosterior:
         return z
 
     def pointwise(self, x: np.ndarray) -> np.ndarray:
-        """Per-sub-sensor Gaussian log density, shape (..., N), at model parameters."""
+        """Per-sub-sensor log density, shape (..., N), at model parameters."""
+        if self.general:
+            return _general.pointwise(self.model, self.prior, self.data, x, self.frames)
         sigma = x[..., -1:] if self.prior.noise is not None else self.model.sigma
         resid = (self.data - self.model.response(x[..., : self.n_model])) / sigma
         return -0.5 * resid * resid - np.log(sigma) - 0.5 * _LOG_2PI
 
     def log_likelihood(self, x: np.ndarray) -> np.ndarray:
         """Total log-likelihood, shape (...,), at model parameters."""
+        if self.general:
+            return _general.log_likelihood(self.model, self.prior, self.data, x, self.frames)
         n = self.model.n_sensors
-        resid = self.data - self.model.response(x[..., : self.n_model])
+        mu = self.model.response(x[..., : self.n_model])
+        resid = np.subtract(self.data, mu, out=mu)
         chi2 = np.einsum("...n,...n->...", resid, resid)
         if self.prior.noise is None:
-            sig = self.model.sigma
-            return -0.5 * chi2 / sig**2 - n * (np.log(sig) + 0.5 * _LOG_2PI)
+            return -0.5 * chi2 / self._var - self._log_norm
         sig = x[..., -1]
         with np.errstate(divide="ignore", invalid="ignore"):
             return -0.5 * chi2 / sig**2 - n * (np.log(sig) + 0.5 * _LOG_2PI)
@@ -135,7 +150,7 @@ class LogPosterior:
         The log prior is the density of ``z`` (Jacobian included).
         """
         z = np.asarray(z, dtype=float)
-        inside = np.all((z >= self._lo) & (z <= self._hi), axis=-1)
+        inside = ((z >= self._lo) & (z <= self._hi)).all(axis=-1)
         x = self._x_of(z)  # angles need no wrapping: the kernel and the prior are periodic
         lp = self.prior.log_prob_inside(x)
         if self._any_log:
@@ -143,11 +158,11 @@ class LogPosterior:
         lp = np.where(inside, lp, -np.inf)
         if not self.use_likelihood:
             return lp, np.zeros_like(lp)
-        ll = np.full(lp.shape, -np.inf)
         ok = np.isfinite(lp)
-        if np.all(ok):
-            ll = self.log_likelihood(x)
-        elif np.any(ok):
+        if ok.all():
+            return lp, self.log_likelihood(x)
+        ll = np.full(lp.shape, -np.inf)
+        if ok.any():
             ll[ok] = self.log_likelihood(x[ok])
         return lp, ll
 

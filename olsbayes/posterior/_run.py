@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
-from ..circular import circular_mean, wrap_angle
-from ..priors import ScenePrior
-from ._arviz import rhat_array
-from ._labels import relabel
+from .._progress import progress_bar
+from ._checkpoint import ChainCheckpoint
 from ._logpost import LogPosterior
+from ._rhat import RhatCheck
 from .options import SamplerOptions, emcee_moves
 
 __all__ = ["make_sampler", "run_ensemble", "AutocorrTime"]
@@ -31,7 +28,8 @@ def make_sampler(logpost: LogPosterior, n_walkers: int, options: SamplerOptions,
 
 
 def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: SamplerOptions,
-                 progress: bool) -> bool:
+                 progress: bool, checkpoint: ChainCheckpoint | None = None,
+                 seed: int | None = None) -> bool:
     """Step from ``z0`` (W, P); True if the convergence criteria held before the limit.
 
     Without ``options.n_steps`` the run stops once ``n >= tau_multiple * tau`` (tau
@@ -40,80 +38,74 @@ def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: Sample
     (:class:`AutocorrTime`).  R-hat is costlier than tau, so once the tau criterion
     holds it is checked at steps growing by 25 % at least.  With ``n_steps`` the
     run takes exactly that many steps and returns False.
+
+    ``progress``: a status line on stderr with the steps taken and the stopping
+    rule's state (tau and the steps it asks for, the last R-hat against its bound).
+    ``checkpoint``: steps already stored there are loaded first (their convergence
+    checks replayed) and the run continues from the last one; the file is written
+    as the run goes, when it stops and when it is interrupted (``seed`` recorded).
     """
+    watch = _Convergence(sampler, logpost, options, AutocorrTime(z0))
+    start, done = z0, 0
+    if checkpoint is not None:
+        done = checkpoint.restore(sampler)
+        if done:
+            start = sampler.get_last_sample()
+            replay = () if watch.fixed else range(options.check_every, done + 1,
+                                                  options.check_every)
+            if any(watch.check(it) for it in replay):
+                return True  # it had converged at a check already stored
     import emcee
 
-    fixed = options.n_steps is not None
-    rhat_ok = _rhat_checker(sampler, logpost, logpost.prior, options.rhat_max)
-    autocorr = AutocorrTime(z0)
-    old = np.inf
-    next_rhat = 0
-    for _ in sampler.sample(emcee.State(z0), iterations=options.step_limit, progress=progress):
-        it = sampler.iteration
-        if fixed or it % options.check_every:
-            continue
-        tau = autocorr.update(sampler.get_chain())
-        tmax = float(np.max(tau))
-        stable = abs(old - tmax) < 0.1 * tmax
-        old = tmax
-        if (np.isfinite(tmax) and it >= options.tau_multiple * tmax and stable
-                and it >= next_rhat):
-            if rhat_ok(tmax):
-                return True
-            next_rhat = int(1.25 * it)
+    total = options.n_steps if watch.fixed else None
+    with progress_bar(enabled=progress, desc="posterior", unit=" steps", total=total,
+                      initial=done) as bar:
+        try:
+            for _ in sampler.sample(emcee.State(start), progress=False,
+                                    iterations=max(options.step_limit - done, 0)):
+                bar.update(1)
+                if checkpoint is not None:
+                    checkpoint.seen(sampler, seed)
+                it = sampler.iteration
+                if watch.fixed or it % options.check_every:
+                    continue
+                stop = watch.check(it)
+                bar.set_postfix_str(watch.status, refresh=False)
+                if stop:
+                    return True
+        finally:
+            if checkpoint is not None:
+                checkpoint.write(sampler, seed)
     return False
 
 
-def _rhat_checker(sampler, logpost: LogPosterior, prior: ScenePrior, rhat_max: float | None
-                  ) -> Callable[[float], bool]:
-    """Closure: True when the post-burn-in draws have max R-hat < rhat_max.
+class _Convergence:
+    """The stopping rule's state across checks: the last tau, the next R-hat check."""
 
-    The draws checked are those the result keeps (same burn-in, thin 1), so a
-    converged result reports R-hat < rhat_max.  Raw draws are tried first; they
-    are relabelled only if they fail and K > 1.  R-hat is computed parameter by
-    parameter (each as in the joint computation) and the check stops at the
-    first one above the bound, starting with the one that failed last time.
-    """
-    first = [0]  # the parameter that failed last: checked first next time
+    def __init__(self, sampler, logpost: LogPosterior, options: SamplerOptions,
+                 autocorr: AutocorrTime):
+        self.sampler, self.options, self.autocorr = sampler, options, autocorr
+        self.fixed = options.n_steps is not None
+        self.rhat_ok = RhatCheck(sampler, logpost, options.rhat_max)
+        self.old, self.next_rhat = np.inf, 0
+        self.status = ""
 
-    def below(x: np.ndarray) -> bool:
-        """max R-hat < rhat_max, one parameter at a time, stopping at the first above."""
-        x = _unwrapped(x, prior)
-        order = [first[0]] + [j for j in range(x.shape[-1]) if j != first[0]]
-        for j in order:
-            if not float(rhat_array(x[..., j:j + 1])[0]) < rhat_max:
-                first[0] = j
-                return False
-        return True
-
-    def check(tmax: float) -> bool:
-        if rhat_max is None:
-            return True
-        chain = sampler.get_chain()
-        n_burn = min(int(np.ceil(5 * tmax)), chain.shape[0] // 2)
-        z = chain[n_burn:].swapaxes(0, 1)
-        x = logpost.to_params(z)
-        if below(x):
-            return True
-        if prior.n_sources < 2:
-            return False
-        lpost = sampler.get_log_prob()[n_burn:].T - logpost.jacobian(z)
-        x, perms = relabel(x, prior.n_sources, prior.periodic[: prior.n_loc + 1], lpost)
-        if np.all(perms == np.arange(prior.n_sources)):
-            return False  # nothing relabelled: the same draws that just failed
-        return below(x)
-
-    return check
-
-
-def _unwrapped(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
-    """Draws (W, D, P) with angles unwrapped around their circular means (for R-hat)."""
-    if prior.periodic.any():
-        per = prior.periodic
-        centre = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)
-        x = x.copy()
-        x[..., per] = centre + wrap_angle(x[..., per] - centre)
-    return x
+    def check(self, it: int) -> bool:
+        """Whether the criteria hold on the first ``it`` steps (a multiple of check_every)."""
+        opts = self.options
+        tau = self.autocorr.update(self.sampler.get_chain()[:it])
+        tmax = float(np.max(tau))
+        stable = abs(self.old - tmax) < 0.1 * tmax
+        self.old = tmax
+        self.status = f"tau {tmax:.0f} -> {opts.tau_multiple * tmax:.0f} steps needed"
+        if (np.isfinite(tmax) and it >= opts.tau_multiple * tmax and stable
+                and it >= self.next_rhat):
+            if self.rhat_ok(tmax, it):
+                return True
+            self.next_rhat = int(1.25 * it)
+        if np.isfinite(self.rhat_ok.last):  # the last R-hat measured, until the next
+            self.status += f", R-hat {self.rhat_ok.last:.3f} -> needs < {opts.rhat_max:g}"
+        return False
 
 
 class AutocorrTime:

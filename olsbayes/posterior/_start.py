@@ -9,11 +9,13 @@ from ..bounds import bound_covariance, covariance_root
 from ..errors import InputError
 from ..ml import MLResult, fit_ml
 from ..priors import ScenePrior
+from . import _general
 
 __all__ = ["ball_covariance", "initial_ensemble", "ml_start", "check_start", "initial_walkers"]
 
 
-def ball_covariance(model, prior: ScenePrior, centre: np.ndarray) -> np.ndarray:
+def ball_covariance(model, prior: ScenePrior, centre: np.ndarray,
+                    n_frames: int | None = None, general: bool = False) -> np.ndarray:
     """Covariance (P, P) of the starting ball: the CRLB at ``centre``.
 
     Unidentifiable or wider-than-prior directions are capped at the prior's
@@ -25,6 +27,9 @@ def ball_covariance(model, prior: ScenePrior, centre: np.ndarray) -> np.ndarray:
     p_model = model.n_params(k)
     cap = np.array([_prior_scale(p) for p in prior.marginals])
     cov = np.diag(cap**2)
+    if general:  # every parameter from the full information (extras and priors included)
+        return _capped(bound_covariance(_general.information(model, prior, centre, n_frames)),
+                       cap)
     if p_model:
         fisher = model.fisher(centre[:p_model])
         if prior.noise is not None:
@@ -40,6 +45,18 @@ def ball_covariance(model, prior: ScenePrior, centre: np.ndarray) -> np.ndarray:
     if prior.noise is not None:
         cov[-1, -1] = min(cap[-1], centre[-1] / np.sqrt(2 * model.n_sensors)) ** 2
     return cov
+
+
+def _capped(bound: tuple, cap: np.ndarray) -> np.ndarray:
+    """The bound with unidentifiable or wider-than-prior directions at the prior scale."""
+    cov, _, singular = bound
+    sub = np.where(np.isfinite(cov), cov, 0.0)
+    sd = np.sqrt(np.clip(np.diag(sub), 0.0, None))
+    too_wide = singular | ~(sd > 0) | (sd > cap)
+    sub[too_wide, :] = 0.0
+    sub[:, too_wide] = 0.0
+    sub[too_wide, too_wide] = cap[too_wide] ** 2
+    return sub
 
 
 def _prior_scale(prior) -> float:
@@ -124,7 +141,8 @@ def check_start(model, prior: ScenePrior, start: object, n_walkers: int) -> obje
 
 def initial_walkers(model, data: np.ndarray, prior: ScenePrior, start: object,
                     n_walkers: int, gen_ml: np.random.Generator,
-                    gen_ball: np.random.Generator) -> tuple[np.ndarray, np.ndarray | None]:
+                    gen_ball: np.random.Generator, frames: bool = False
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
     """Walker positions (W, P) in model coordinates and the ball centre (or None).
 
     ``start`` is as returned by :func:`check_start`.  None fits the ML point
@@ -136,8 +154,12 @@ def initial_walkers(model, data: np.ndarray, prior: ScenePrior, start: object,
         return prior.sample(n_walkers, rng=gen_ball), None
     if isinstance(start, np.ndarray) and start.ndim == 2:
         return start.copy(), None
+    general = _general.is_general(model, prior, frames)
     if isinstance(start, np.ndarray):
         centre = start.copy()
+    elif general:
+        centre = np.clip(_general.ml_centre(model, data, prior, start, gen_ml, frames),
+                         prior.lower, prior.upper)
     else:
         ml_point = (ml_start(model, data, prior.n_sources, gen_ml) if start is None
                     else np.asarray(start.params, dtype=float))
@@ -150,5 +172,5 @@ def initial_walkers(model, data: np.ndarray, prior: ScenePrior, start: object,
         raise InputError(
             f"start {np.array2string(centre, precision=4)} lies outside the prior support "
             f"(lower {prior.lower}, upper {prior.upper})")
-    cov = ball_covariance(model, prior, centre)
+    cov = ball_covariance(model, prior, centre, data.shape[-2] if frames else None, general)
     return initial_ensemble(centre, cov, n_walkers, prior.contains, gen_ball), centre

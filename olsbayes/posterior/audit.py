@@ -63,9 +63,9 @@ BOUND_LEVEL = 0.94
 
 
 def _physical_bound(name: str, bound: float) -> bool:
-    """Bounds set by physics, not by the prior: I >= 0, z >= 0, |lat| <= pi/2."""
+    """Bounds set by physics, not by the prior: I >= 0, z >= 0, background >= 0, |lat| <= pi/2."""
     base = name.split("[", 1)[0]
-    return (base in ("I", "z") and bound == 0.0) or (
+    return (base in ("I", "z", "b") and bound == 0.0) or (
         base == "lat" and abs(bound) >= np.pi / 2 - 1e-9)
 
 

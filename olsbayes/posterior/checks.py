@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._general import is_general, pearson
+
 __all__ = ["ModelCheck", "model_check", "chi_square"]
 
 #: Draws whose responses are evaluated at once (bounds memory for large arrays).
@@ -88,6 +90,10 @@ def model_check(result) -> ModelCheck:
     """
     model, prior, k = result.model, result.prior, result.n_sources
     data = np.asarray(result.idata.observed_data["obs"].values, dtype=float)
+    consts = result.idata.constant_data
+    n_frames = int(np.ravel(consts["n_frames"].values)[0]) if "n_frames" in consts else None
+    if is_general(model, prior, n_frames is not None):
+        return _general_check(result, data, n_frames)
     p_model = model.n_params(k)
     inferred = prior.noise is not None
     est = np.asarray(result.estimate, dtype=float)
@@ -103,6 +109,24 @@ def model_check(result) -> ModelCheck:
         sd = xs[:, -1:] if inferred else model.sigma
         t_obs = np.sum(((data - mu) / sd) ** 2, axis=-1)
         t_rep = np.sum(((rep[start:start + _CHUNK] - mu) / sd) ** 2, axis=-1)
+        exceed += int(np.sum(t_rep >= t_obs))
+    return ModelCheck(chi2=chi2, dof=int(data.shape[-1] - result.n_params),
+                      ppp=exceed / x.shape[0], n_draws=int(x.shape[0]))
+
+
+def _general_check(result, data: np.ndarray, n_frames: int | None) -> ModelCheck:
+    """:func:`model_check` with Pearson's chi^2 of the stored statistic (other noise models)."""
+    model, prior = result.model, result.prior
+    est = np.asarray(result.estimate, dtype=float)
+    chi2 = float(pearson(model, prior, data, est, n_frames))
+    x = result.samples.reshape(-1, result.n_params)
+    rep = np.asarray(result.idata.posterior_predictive["obs"].values, dtype=float)
+    rep = rep.reshape(-1, data.shape[-1])
+    exceed = 0
+    for start in range(0, x.shape[0], _CHUNK):
+        xs = x[start:start + _CHUNK]
+        t_obs = pearson(model, prior, data, xs, n_frames)
+        t_rep = pearson(model, prior, rep[start:start + _CHUNK], xs, n_frames)
         exceed += int(np.sum(t_rep >= t_obs))
     return ModelCheck(chi2=chi2, dof=int(data.shape[-1] - result.n_params),
                       ppp=exceed / x.shape[0], n_draws=int(x.shape[0]))

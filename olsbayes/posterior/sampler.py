@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 
@@ -14,6 +15,8 @@ from ..errors import ConvergenceWarning, InputError, PriorBoundWarning
 from ..model import Model
 from ..priors import ScenePrior, default_priors
 from ._assemble import MAX_STORED_DRAWS, assemble
+from ._checkpoint import ChainCheckpoint, problem_key
+from ._general import check_prior_extras
 from ._logpost import LogPosterior, cut_shift
 from ._run import make_sampler, run_ensemble
 from ._start import check_start, initial_walkers
@@ -24,9 +27,10 @@ from .result import PosteriorResult
 __all__ = ["sample"]
 
 
-def _check_prior(model: Model, k: int, priors: object, data: np.ndarray) -> ScenePrior:
+def _check_prior(model: Model, k: int, priors: object, data: np.ndarray,
+                 frames: bool = False) -> ScenePrior:
     if priors is None:
-        return default_priors(model, k, data=data)
+        return default_priors(model, k, data=data, frames=frames)
     if not isinstance(priors, ScenePrior):
         raise InputError(
             f"priors must be an olsbayes.priors.ScenePrior (see default_priors); "
@@ -37,6 +41,7 @@ def _check_prior(model: Model, k: int, priors: object, data: np.ndarray) -> Scen
             f"priors were built for {priors.n_sources} {priors.kind!r} source(s); the model "
             f"has {model.kind!r} sources and n_sources={k}"
         )
+    check_prior_extras(model, priors)
     return priors
 
 
@@ -96,6 +101,8 @@ def sample(
     options: SamplerOptions | None = None,
     rng: np.random.Generator | int | None = None,
     progress: bool = True,
+    checkpoint: str | os.PathLike | None = None,
+    frames: bool = False,
 ) -> PosteriorResult:
     """Sample the posterior of ``n_sources`` sources with an emcee ensemble.
 
@@ -105,8 +112,10 @@ def sample(
     Parameters
     ----------
     model : Model
-    data : ndarray (N,)
-        One vector of readings.
+        Any noise model and nuisance terms: their inferred extras (an unknown
+        sigma, background, gains, offsets) are sampled with the sources, after them.
+    data : ndarray (N,), or (F, N) with ``frames``
+        One vector of readings, or F frames of one scene.
     n_sources : int
         K >= 1.
     priors : ScenePrior, optional
@@ -127,7 +136,21 @@ def sample(
         The same rng gives identical chains.  None: a seed is drawn from the
         system's entropy and recorded (``result.seed``), so the run can be repeated.
     progress : bool
-        Show emcee's progress bar.
+        A status line on stderr while the run lasts (after a few seconds): the
+        steps taken, tau and the steps the stopping rule asks for, the last R-hat
+        against ``rhat_max``.
+    checkpoint : path, optional
+        An ``.npz`` file the run writes as it goes (every minute, at its end and
+        when interrupted) and, when it exists, continues from: the same call
+        again gives the draws an uninterrupted run would have given; its stopping
+        settings may differ (a larger ``max_steps`` continues a run that hit its
+        limit).  Without ``rng`` the seed recorded in the file is used (a run
+        seeded by a Generator records none: its resumed start may differ, the
+        stored chain is continued all the same).  A file of
+        other readings, model, prior, walkers or moves is refused
+        (:mod:`olsbayes.posterior._checkpoint`).
+    frames : bool
+        ``data`` holds F frames of one static scene (fitted jointly).
 
     Returns
     -------
@@ -136,26 +159,35 @@ def sample(
         order by default).  A :class:`~olsbayes.errors.PriorBoundWarning` is issued
         when a posterior piles up at a prior bound (``result.at_bound``).
     """
-    data, k = _check_scene(model, data, n_sources)
-    prior = _check_prior(model, k, priors, data)
+    if not isinstance(frames, (bool, np.bool_)):
+        raise InputError(f"frames must be True or False; got {frames!r}")
+    data, k = _check_scene(model, data, n_sources, bool(frames))
+    prior = _check_prior(model, k, priors, data, bool(frames))
     options, n_walkers = _check_options(options, prior.n_params)
     _check_memory(n_walkers, prior.n_params, model.n_sensors, options.step_limit)
     start = check_start(model, prior, start, n_walkers)
     if not isinstance(progress, (bool, np.bool_)):
         raise InputError(f"progress must be True or False; got {progress!r}")
+    ckpt = None
+    if checkpoint is not None:
+        ckpt = ChainCheckpoint(checkpoint, problem_key(model, data, prior, n_walkers, options))
+        ckpt.check_seed(None if rng is None else seed_of(rng))
+        if rng is None and ckpt.seed is not None:
+            rng = ckpt.seed
     if rng is None:
         rng = draw_seed()
     seed = seed_of(rng)
     gen_ml, gen_ball, gen_mc, gen_prior = as_rng(rng).spawn(4)
     record = provenance(seed=rng, data=data)
 
-    walkers, centre = initial_walkers(model, data, prior, start, n_walkers, gen_ml, gen_ball)
+    walkers, centre = initial_walkers(model, data, prior, start, n_walkers, gen_ml, gen_ball,
+                                      bool(frames))
     logpost = LogPosterior(model, data, prior, cut_shift(prior, walkers),
-                           options.use_likelihood)
+                           options.use_likelihood, bool(frames))
     z0 = _start_coordinates(logpost, walkers)
     sampler = make_sampler(logpost, n_walkers, options, gen_mc)
     t0 = time.perf_counter()
-    converged = run_ensemble(sampler, z0, logpost, options, bool(progress))
+    converged = run_ensemble(sampler, z0, logpost, options, bool(progress), ckpt, seed)
     elapsed = time.perf_counter() - t0
     fields = assemble(model, data, logpost, sampler, centre, options, gen_prior, record)
     max_tau = float(np.max(fields["tau"]))
@@ -201,11 +233,13 @@ def _warn_narrow(result: PosteriorResult) -> None:
         )
 
 
-def _check_scene(model: object, data: object, n_sources: object) -> tuple[np.ndarray, int]:
-    """The readings as one checked vector (N,) and K."""
+def _check_scene(model: object, data: object, n_sources: object, frames: bool = False
+                 ) -> tuple[np.ndarray, int]:
+    """The readings as one checked vector (N,) (frames: (F, N)) and K."""
     if not isinstance(model, Model):
         raise InputError(f"model must be an olsbayes.Model; got {type(model).__name__}")
-    data = model.check_data(data)
-    if data.ndim != 1:
-        raise InputError(f"data must be one vector of shape ({model.n_sensors},); got {data.shape}")
+    data = model.check_data(data, frames=frames)
+    if data.ndim != 1 + frames:
+        shape = f"(F, {model.n_sensors})" if frames else f"({model.n_sensors},)"
+        raise InputError(f"data must be one measurement of shape {shape}; got {data.shape}")
     return data, integer("n_sources", n_sources, low=1)

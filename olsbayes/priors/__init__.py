@@ -8,12 +8,15 @@ module docstring for the K! bookkeeping), and :class:`PoissonCount` /
 """
 
 from .counts import CountPrior, PoissonCount, UniformCount
-from .scene import ScenePrior, data_intensity_bound, default_priors
+from .defaults import data_intensity_bound, default_priors
+from .scene import ScenePrior
 from .univariate import (
     CircularUniform,
     Exponential,
     HalfNormal,
+    LogNormal,
     LogUniform,
+    Normal,
     Prior,
     SinLatitude,
     Uniform,
@@ -23,6 +26,8 @@ __all__ = [
     "Prior",
     "Uniform",
     "LogUniform",
+    "Normal",
+    "LogNormal",
     "HalfNormal",
     "Exponential",
     "CircularUniform",

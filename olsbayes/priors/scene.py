@@ -28,12 +28,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammaln
 
-from .._validation import as_rng, finite_array, integer, positive_float
+from .._validation import as_rng, integer
 from ..circular import wrap_angle
 from ..errors import InputError
-from .univariate import CircularUniform, LogUniform, Prior, SinLatitude, Uniform
+from .univariate import CircularUniform, Prior, SinLatitude
 
-__all__ = ["ScenePrior", "default_priors", "data_intensity_bound"]
+__all__ = ["ScenePrior"]
 
 _HALF_PI = np.pi / 2 + 1e-12
 _RANGES = {
@@ -77,22 +77,16 @@ class ScenePrior:
     noise : Prior, optional
         Prior of the noise sd ``sigma`` when it is inferred (e.g. ``LogUniform``);
         None (default) means sigma is known, ``model.sigma``.
+    extra : sequence of (name, Prior), optional
+        Priors of the model's extra parameters (an unknown sigma, background,
+        gains, offsets; :func:`olsbayes.measurement.extra_names`), appended after
+        the sources; not together with ``noise``.
 
     Notes
     -----
-    **Exchangeable sources and K!.**  The same 1-D priors apply to every
-    source, so the density is symmetric under permutations of the K source
-    blocks: it is the normalised density of the *labelled* parameter vector
-    on the full product space (each unordered scene appears K! times).
-
-    * An evidence integrated over the full space with ``log_prob``/``ppf``
-      (nested sampling, or a Laplace sum over all K! copies) needs no K!
-      correction.
-    * Restricted to one canonical ordering (a wedge), the prior has mass 1/K!;
-      the normalised ordered density is ``log_prob_ordered = log_prob + log K!``.
-      A Laplace approximation around a single labelled mode, with
-      ``log_prob`` as the prior, counts one of K! equal copies: add
-      ``log_label_factor`` (= log K!) when the copies do not overlap.
+    The density is that of the *labelled* parameters on the full product space
+    (see the module notes on K!): ``log_prob``/``ppf`` evidences need no K!
+    correction; a Laplace value around one labelled mode adds ``log_label_factor``.
     """
 
     def __init__(
@@ -102,6 +96,7 @@ class ScenePrior:
         intensity: Prior,
         location: tuple[Prior, ...] | list[Prior] | None = None,
         noise: Prior | None = None,
+        extra: tuple[tuple[str, Prior], ...] | list | None = None,
     ):
         self.kind = model.kind
         self.n_loc = model.n_loc
@@ -128,24 +123,38 @@ class ScenePrior:
         self.intensity = _check_prior("intensity", intensity, 0.0, np.inf, "intensities")
         self.noise = None if noise is None else _check_prior(
             "noise", noise, 0.0, np.inf, "the noise sd sigma")
+        extra = tuple(extra or ())
+        if extra and noise is not None:
+            raise InputError("give noise= (sigma of a Gaussian model) or extra=, not both")
+        if any(not (isinstance(e, tuple) and len(e) == 2 and isinstance(e[0], str))
+               for e in extra):
+            raise InputError("extra must be a sequence of (name, Prior) pairs")
+        self.extra = tuple((nm, _check_prior(f"prior of {nm}", p, -np.inf, np.inf, nm))
+                           for nm, p in extra)
 
     # -- layout -----------------------------------------------------------------
     @property
     def n_params(self) -> int:
-        """P = K (d + 1), plus one when sigma is inferred."""
-        return self.n_sources * (self.n_loc + 1) + (self.noise is not None)
+        """P = K (d + 1), plus one when sigma is inferred, plus the extras."""
+        return self.n_sources * (self.n_loc + 1) + (self.noise is not None) + len(self.extra)
+
+    @property
+    def extra_names(self) -> list[str]:
+        """Names of the extra parameters (after the sources)."""
+        return [nm for nm, _ in self.extra]
 
     @property
     def param_names(self) -> list[str]:
-        """Names in layout order (``model.param_names(K)`` then ``"sigma"``)."""
-        return self._names + (["sigma"] if self.noise is not None else [])
+        """Names in layout order (``model.param_names(K)`` then ``"sigma"`` or the extras)."""
+        return self._names + (["sigma"] if self.noise is not None else []) + self.extra_names
 
     @property
     def marginals(self) -> tuple[Prior, ...]:
         """The 1-D prior of every flat parameter, length P."""
         per = self.location + (self.intensity,)
         out = per * self.n_sources
-        return out + ((self.noise,) if self.noise is not None else ())
+        return (out + ((self.noise,) if self.noise is not None else ())
+                + tuple(p for _, p in self.extra))
 
     @property
     def periodic(self) -> np.ndarray:
@@ -179,6 +188,10 @@ class ScenePrior:
         groups = [(p, k + j) for j, p in enumerate(self.location + (self.intensity,))]
         if self.noise is not None:
             groups.append((self.noise, np.array([self.n_params - 1])))
+        same: dict[int, tuple[Prior, list[int]]] = {}  # one group per distinct prior object
+        for j, (_, p) in enumerate(self.extra):
+            same.setdefault(id(p), (p, []))[1].append(self.n_sources * w + j)
+        groups += [(p, np.array(idx)) for p, idx in same.values()]
         return groups
 
     def _check(self, name: str, x: object) -> np.ndarray:
@@ -273,106 +286,9 @@ class ScenePrior:
         return np.isfinite(self.log_prob(x))
 
     def __repr__(self) -> str:
+        extra = f", extra=<{len(self.extra)} priors>" if self.extra else ""
         return (
             f"ScenePrior(kind={self.kind!r}, n_sources={self.n_sources}, "
-            f"location={self.location!r}, intensity={self.intensity!r}, noise={self.noise!r})"
+            f"location={self.location!r}, intensity={self.intensity!r}, noise={self.noise!r}"
+            f"{extra})"
         )
-
-
-def _direction_gain(model, prior_loc: tuple[Prior, ...]) -> float:
-    """A low quantile over the location prior of the best sub-sensor gain per unit I."""
-    gen = np.random.default_rng(20240531)  # fixed stream: a deterministic grid of directions
-    loc = np.column_stack([p.sample(4096, rng=gen) for p in prior_loc])
-    x = np.column_stack([loc, np.ones(len(loc))])
-    best = model.response(x).max(axis=-1)
-    return float(np.quantile(best, 0.01))
-
-
-def data_intensity_bound(model, data: np.ndarray, location: tuple[Prior, ...] | None = None
-                         ) -> float:
-    """Weakly informative intensity bound from the readings.
-
-    Every source adds a non-negative reading, so one source of intensity I at a
-    location seen with best sub-sensor gain ``a`` gives ``max(data) >= a I`` up
-    to noise.  Returns ``2 (max(data) + 3 sigma) / a`` with ``a`` the 1% quantile
-    of the best gain over the location prior (a Monte Carlo grid).  It depends
-    on the data: prefer an explicit ``i_max`` for evidence calculations.
-    """
-    data = model.check_data(data)
-    if location is None:
-        location = ScenePrior(model, 0, Uniform(0.0, 1.0)).location
-    gain = _direction_gain(model, tuple(location))
-    if not gain > 0:
-        raise InputError("the array leaves part of the location prior unseen; give i_max")
-    return 2.0 * (float(np.max(data)) + 3.0 * model.sigma) / gain
-
-
-def _plate_box(model) -> tuple[Prior, Prior, Prior]:
-    pos = model.array.positions
-    lo, hi = pos.min(axis=0), pos.max(axis=0)
-    size = float(max(np.max(hi - lo), 1e-12))
-    return (Uniform(lo[0] - size / 2, hi[0] + size / 2),
-            Uniform(lo[1] - size / 2, hi[1] + size / 2), Uniform(0.0, size))
-
-
-def default_priors(
-    model,
-    n_sources: int,
-    *,
-    i_max: float | None = None,
-    data: np.ndarray | None = None,
-    intensity: str | Prior = "uniform",
-    infer_sigma: bool = False,
-    sigma_range: tuple[float, float] | None = None,
-    box: tuple[Prior, Prior, Prior] | None = None,
-) -> ScenePrior:
-    """The package's default scene prior.
-
-    Parameters
-    ----------
-    model : Model
-    n_sources : int
-    i_max : float, optional
-        Upper end of the intensity prior.  If None, derived from ``data`` with
-        :func:`data_intensity_bound`; one of the two is required.
-    data : ndarray (N,), optional
-        Readings, used only when ``i_max`` is None.
-    intensity : {"uniform", "loguniform"} or Prior
-        ``Uniform(0, i_max)`` or ``LogUniform(1e-3 i_max, i_max)``, or any prior.
-    infer_sigma : bool
-        Add the noise sd as a parameter with prior ``LogUniform(*sigma_range)``,
-        default range ``(model.sigma / 100, model.sigma * 100)``.
-    box : three Priors, optional
-        Plate only: priors of x, y, z; default the plate's extent widened by half
-        its size on each side, and z in [0, size].
-    """
-    if model.kind == "position":
-        location = box if box is not None else _plate_box(model)
-    else:
-        location = None
-    if isinstance(intensity, Prior):
-        inten = intensity
-    else:
-        if i_max is None:
-            if data is None:
-                raise InputError("default_priors needs i_max (the largest intensity) or data")
-            loc = location if location is not None else ScenePrior(
-                model, 0, Uniform(0.0, 1.0)).location
-            i_max = data_intensity_bound(model, data, loc)
-        i_max = positive_float("i_max", i_max)
-        if intensity == "uniform":
-            inten = Uniform(0.0, i_max)
-        elif intensity == "loguniform":
-            inten = LogUniform(1e-3 * i_max, i_max)
-        else:
-            raise InputError(
-                f"intensity must be 'uniform', 'loguniform' or a Prior; got {intensity!r}"
-            )
-    noise = None
-    if infer_sigma:
-        rng_ = sigma_range if sigma_range is not None else (model.sigma / 100, model.sigma * 100)
-        bounds = finite_array("sigma_range", rng_, ndim=1)
-        if bounds.shape != (2,):
-            raise InputError(f"sigma_range must be (lo, hi); got {sigma_range!r}")
-        noise = LogUniform(float(bounds[0]), float(bounds[1]))
-    return ScenePrior(model, n_sources, inten, location=location, noise=noise)

@@ -34,6 +34,8 @@ __all__ = [
     "Exponential",
     "CircularUniform",
     "SinLatitude",
+    "Normal",
+    "LogNormal",
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -313,3 +315,83 @@ class SinLatitude(Prior):
         return np.arcsin(np.clip(2.0 * u - 1.0, -1.0, 1.0))
 
     # no scipy.stats counterpart: sin(lat) ~ Uniform(-1, 1) is the check.
+
+
+@dataclass(frozen=True)
+class Normal(Prior):
+    """Normal (Gaussian) with mean ``mean`` and sd ``sd`` on the real line.
+
+    E.g. a sub-sensor's offset known from a calibration to within ``sd``.
+    """
+
+    mean: float
+    sd: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", _finite_bound("mean", self.mean))
+        object.__setattr__(self, "sd", positive_float("sd", self.sd))
+
+    lower = property(lambda self: -np.inf)
+    upper = property(lambda self: np.inf)
+
+    def _log_pdf(self, x):
+        z = (x - self.mean) / self.sd
+        return -0.5 * z * z - np.log(self.sd) - 0.5 * _LOG_2PI
+
+    def _cdf(self, x):
+        from scipy.special import ndtr
+
+        return ndtr((x - self.mean) / self.sd)
+
+    def _ppf(self, u):
+        from scipy.special import ndtri
+
+        return self.mean + self.sd * ndtri(u)
+
+    def to_scipy(self):
+        """The equivalent frozen ``scipy.stats.norm(mean, sd)``."""
+        from scipy import stats
+
+        return stats.norm(loc=self.mean, scale=self.sd)
+
+
+@dataclass(frozen=True)
+class LogNormal(Prior):
+    """log x ~ Normal(``mu``, ``s``) on (0, inf): a positive factor known to a relative ``s``.
+
+    ``LogNormal(0, s)`` is a sub-sensor gain around 1 with relative sd about ``s``.
+    """
+
+    mu: float
+    s: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mu", _finite_bound("mu", self.mu))
+        object.__setattr__(self, "s", positive_float("s", self.s))
+
+    lower = property(lambda self: 0.0)
+    upper = property(lambda self: np.inf)
+
+    def _log_pdf(self, x):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lx = np.log(x)
+            z = (lx - self.mu) / self.s
+            return np.where(x > 0, -0.5 * z * z - lx - np.log(self.s) - 0.5 * _LOG_2PI,
+                            -np.inf)
+
+    def _cdf(self, x):
+        from scipy.special import ndtr
+
+        with np.errstate(divide="ignore"):
+            return ndtr((np.log(x) - self.mu) / self.s)
+
+    def _ppf(self, u):
+        from scipy.special import ndtri
+
+        return np.exp(self.mu + self.s * ndtri(u))
+
+    def to_scipy(self):
+        """The equivalent frozen ``scipy.stats.lognorm(s, scale=exp(mu))``."""
+        from scipy import stats
+
+        return stats.lognorm(self.s, scale=np.exp(self.mu))

@@ -65,9 +65,19 @@ from .nested import NestedEvidence, nested_log_evidence
 from .options import DecisionOptions, LaplaceOptions, NestedOptions, SelectOptions
 from .result import KEvidence, SelectionResult
 from .select import METHODS, select_k
+from .structure import (
+    StructureOptions,
+    StructureSelection,
+    select_structure,
+    structure_candidates,
+)
 
 __all__ = [
     "select_k",
+    "select_structure",
+    "StructureSelection",
+    "StructureOptions",
+    "structure_candidates",
     "SelectOptions",
     "LaplaceOptions",
     "NestedOptions",

@@ -209,7 +209,7 @@ def finish(works: list[KWork], log_pk: np.ndarray, method: str, escalated: dict[
             log_likelihood=float(w.log_likelihood), n_params=int(w.params.size),
             params=w.params, laplace=float(w.laplace), trusted=not w.reasons,
             reasons=tuple(w.reasons), n_calls=int(w.n_calls), seconds=float(w.seconds),
-            fit=w.fit, origin=w.origin,
+            fit=w.fit, origin=w.origin, nested=w.nested,
         )
         for w in works
     )

@@ -8,6 +8,7 @@ import time
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,11 +19,12 @@ from .criteria import aic, bic
 from .diagnostics import laplace_trust
 from .laplace import model_laplace, noise_log_evidence
 from .mixture import mixture_log_evidence
-from .nested import nested_log_evidence
+from .nested import NestedCheckpoint, nested_log_evidence
 from .options import NestedOptions
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
-           "information_criterion", "scalar_log_likelihood", "scalar_prior_transform"]
+           "information_criterion", "scalar_log_likelihood", "ScalarLogLikelihood",
+           "scalar_prior_transform", "ScalarPriorTransform", "nested_key"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +44,7 @@ class KWork:
     fit: Any = None
     stats: Mapping[str, float] | None = None
     origin: str = ""
+    nested: Any = None
 
 
 def noise_work(model: Model, data: np.ndarray) -> KWork:
@@ -124,27 +127,39 @@ def laplace_work(model: Model, k: int, fitted: tuple, prior,
                  stats=stats, origin=origin)
 
 
-def scalar_log_likelihood(model: Model, data: np.ndarray):
+def scalar_log_likelihood(model: Model, data: np.ndarray) -> ScalarLogLikelihood:
     """A lean one-point log-likelihood for dynesty, equal to ``model.log_likelihood``.
 
     dynesty's slice samplers call the likelihood one point at a time, where the
     batched model's per-call overhead dominates.  Distant sources (ring, sphere)
-    get a direct kernel; near sources use the model.
+    get a direct kernel; near sources use the model.  The object pickles (a
+    checkpointed nested run stores it).
     """
-    data = np.array(data, dtype=float)
-    if model.kind == "position":
-        return lambda x: float(model.log_likelihood(x, data))
-    nt = np.ascontiguousarray(model.array.normals.T)
-    law = model.sensitivity.value
-    inv2s2 = 0.5 / model.sigma**2
-    const = -model.n_sensors * (math.log(model.sigma) + 0.5 * math.log(2.0 * math.pi))
-    w = model.n_loc + 1
-    ring = model.kind == "angle"
+    return ScalarLogLikelihood(model, data)
 
-    def log_like(x: np.ndarray) -> float:
-        b = x.reshape(-1, w)
-        u = np.empty((b.shape[0], nt.shape[0]))
-        if ring:
+
+class ScalarLogLikelihood:
+    """``f(x) -> log p(data | x)`` of one parameter vector x (:func:`scalar_log_likelihood`)."""
+
+    def __init__(self, model: Model, data: np.ndarray):
+        self.model = model
+        self.data = np.array(data, dtype=float)
+        if model.kind != "position":
+            self.nt = np.ascontiguousarray(model.array.normals.T)
+            self.inv2s2 = 0.5 / model.sigma**2
+            self.const = -model.n_sensors * (math.log(model.sigma)
+                                             + 0.5 * math.log(2.0 * math.pi))
+            self.w = model.n_loc + 1
+            self.ring = model.kind == "angle"
+
+    def __call__(self, x: np.ndarray) -> float:
+        """log-likelihood of x (P,)."""
+        model = self.model
+        if model.kind == "position":
+            return float(model.log_likelihood(x, self.data))
+        b = x.reshape(-1, self.w)
+        u = np.empty((b.shape[0], self.nt.shape[0]))
+        if self.ring:
             u[:, 0] = np.cos(b[:, 0])
             u[:, 1] = np.sin(b[:, 0])
         else:
@@ -152,13 +167,21 @@ def scalar_log_likelihood(model: Model, data: np.ndarray):
             u[:, 0] = cl * np.cos(b[:, 0])
             u[:, 1] = cl * np.sin(b[:, 0])
             u[:, 2] = np.sin(b[:, 1])
-        r = data - b[:, -1] @ law(u @ nt)
-        return float(const - inv2s2 * (r @ r))
-
-    return log_like
+        r = self.data - b[:, -1] @ model.sensitivity.value(u @ self.nt)
+        return float(self.const - self.inv2s2 * (r @ r))
 
 
-def scalar_prior_transform(prior):
+def nested_key(model: Model, data: np.ndarray, prior, options: NestedOptions) -> str:
+    """SHA-256 naming a nested run's problem: readings, model, prior, live points."""
+    import hashlib
+
+    from .._provenance import data_sha256
+
+    text = repr([repr(model), data_sha256(data), repr(prior), options.n_live])
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def scalar_prior_transform(prior) -> ScalarPriorTransform:
     """A lean one-point prior transform for dynesty, equal to ``prior.ppf``.
 
     For u (P,) in the unit cube: the uniform marginals (:class:`~olsbayes.priors.Uniform`,
@@ -167,44 +190,61 @@ def scalar_prior_transform(prior):
     coordinate roles by their own quantile functions.  u outside the cube, and a
     prior with a noise parameter, go through ``prior.ppf``.  dynesty calls the
     transform once per proposed point, where the per-role bookkeeping of
-    ``ScenePrior.ppf`` would cost more than the likelihood.
+    ``ScenePrior.ppf`` would cost more than the likelihood.  The object pickles
+    (a checkpointed nested run stores it).
     """
-    from ..priors import CircularUniform, Uniform
+    return ScalarPriorTransform(prior)
 
-    w, k = prior.n_loc + 1, prior.n_sources
-    lo, scale = np.zeros(prior.n_params), np.ones(prior.n_params)
-    other = []  # (marginal, indices) of the coordinate roles with another law
-    for j, p in enumerate(prior.location + (prior.intensity,)):
-        idx = np.arange(k) * w + j
-        if type(p) is Uniform:
-            lo[idx], scale[idx] = p.lo, p.hi - p.lo
-        elif type(p) is CircularUniform:
-            lo[idx], scale[idx] = -np.pi, 2.0 * np.pi
-        else:
-            other.append((p, idx))
-    if prior.noise is not None:
-        return prior.ppf
 
-    def transform(u: np.ndarray) -> np.ndarray:
+class ScalarPriorTransform:
+    """``u (P,) -> x (P,)``, the prior's quantile map (:func:`scalar_prior_transform`)."""
+
+    def __init__(self, prior):
+        from ..priors import CircularUniform, Uniform
+
+        self.prior = prior
+        w, k = prior.n_loc + 1, prior.n_sources
+        self.lo, self.scale = np.zeros(prior.n_params), np.ones(prior.n_params)
+        self.other = []  # (marginal, indices) of the coordinate roles with another law
+        for j, p in enumerate(prior.location + (prior.intensity,)):
+            idx = np.arange(k) * w + j
+            if type(p) is Uniform:
+                self.lo[idx], self.scale[idx] = p.lo, p.hi - p.lo
+            elif type(p) is CircularUniform:
+                self.lo[idx], self.scale[idx] = -np.pi, 2.0 * np.pi
+            else:
+                self.other.append((p, idx))
+        self.lean = prior.noise is None
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        """x = F^-1(u) for u (P,) in the unit cube."""
         u = np.asarray(u, dtype=float)
-        if u.shape != lo.shape or not all(0.0 <= v <= 1.0 for v in u.tolist()):
-            return prior.ppf(u)
-        out = lo + scale * u
-        for p, idx in other:
+        if (not self.lean or u.shape != self.lo.shape
+                or not all(0.0 <= v <= 1.0 for v in u.tolist())):
+            return self.prior.ppf(u)
+        out = self.lo + self.scale * u
+        for p, idx in self.other:
             out[idx] = p._ppf(u[idx])
         return out
 
-    return transform
-
 
 def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: NestedOptions,
-                *, rng: np.random.Generator) -> KWork:
-    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept)."""
+                *, rng: np.random.Generator, progress: bool = False) -> KWork:
+    """Replace a K's evidence by dynesty's log Z +- logzerr (the Laplace value is kept).
+
+    With ``options.checkpoint_dir`` the run is checkpointed to
+    ``nested-k<K>.pkl`` there (and continued from it).
+    """
     maxcall = options.maxcall
+    ckpt = None
+    if options.checkpoint_dir is not None:
+        ckpt = NestedCheckpoint(Path(options.checkpoint_dir) / f"nested-k{work.k}.pkl",
+                                nested_key(model, data, prior, options))
     out = nested_log_evidence(scalar_log_likelihood(model, data), scalar_prior_transform(prior),
                               prior.n_params,
                               periodic=prior.periodic_indices, rng=rng, maxcall=maxcall,
-                              n_live=options.n_live, dlogz=options.dlogz)
+                              n_live=options.n_live, dlogz=options.dlogz, progress=progress,
+                              checkpoint=ckpt)
     lap = work.laplace
     if not work.reasons and np.isfinite(lap):
         gap = abs(out.log_evidence - lap)
@@ -217,7 +257,8 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
         f"nested sampling stopped at maxcall={maxcall}",)
     return dataclasses.replace(
         work, value=out.log_evidence, error=out.error, method="nested", reasons=reasons,
-        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds)
+        n_calls=work.n_calls + out.n_calls, seconds=work.seconds + out.seconds,
+        nested=out.run)
 
 
 def information_criterion(model: Model, k: int, fitted: tuple, method: str,

@@ -10,10 +10,12 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from .._io import ensure_dir
 from .._validation import integer, nonnegative_float, positive_float
 from ..errors import InputError
 from ..ml import METHODS as ML_METHODS
@@ -69,13 +71,25 @@ class NestedOptions:
         the largest K that may be sampled (checked by ``select_k``).
     dlogz : float
         Stopping tolerance on the remaining evidence (nats, > 0).
+    checkpoint_dir : path or None
+        Folder where every nested run keeps its sampler (``nested-k<K>.pkl``,
+        written every minute and at the end) and from which a run started again
+        on the same readings, model and prior continues.  The files are pickles:
+        resume only from folders you wrote.
     """
 
     maxcall: int = 300_000
     n_live: int | None = None
     dlogz: float = 0.5
+    checkpoint_dir: str | os.PathLike | None = None
 
     def __post_init__(self) -> None:
+        if self.checkpoint_dir is not None:
+            if not isinstance(self.checkpoint_dir, (str, os.PathLike)):
+                raise InputError(f"checkpoint_dir must be a folder path or None; "
+                                 f"got {type(self.checkpoint_dir).__name__}")
+            object.__setattr__(self, "checkpoint_dir",
+                               ensure_dir(self.checkpoint_dir, "checkpoint_dir"))
         object.__setattr__(self, "maxcall", integer("maxcall", self.maxcall, low=1000))
         if self.n_live is not None:
             object.__setattr__(self, "n_live", integer("n_live", self.n_live, low=2))

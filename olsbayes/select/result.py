@@ -62,6 +62,10 @@ class KEvidence:
         Where ``params`` come from: ``"fit_ml"``, ``"fit_ml (not converged)"``,
         ``"from K+1"`` (a source of the (K+1)-fit dropped, then refined) or
         ``"from K-1"`` (a source added to the (K-1)-fit, then refined).
+    nested : NestedRun or None
+        dynesty's results where this K's evidence came from nested sampling
+        (:meth:`~olsbayes.select.nested.NestedRun.plot` draws its run and trace
+        plots); None otherwise.
     """
 
     k: int
@@ -78,6 +82,7 @@ class KEvidence:
     seconds: float = 0.0
     fit: Any = None
     origin: str = ""
+    nested: Any = None
 
     def __repr__(self) -> str:
         err = "" if not np.isfinite(self.error) else f" +- {self.error:.3g}"
@@ -147,6 +152,19 @@ class SelectionResult:
             if ev.k == k:
                 return ev
         raise KeyError(f"no candidate with K = {k}; candidates are {list(self.ks)}")
+
+    def nested_plot(self, k: int, kind: str = "run", **kwargs: Any) -> Any:
+        """dynesty's ``"run"`` or ``"trace"`` plot of K's nested run (a matplotlib figure).
+
+        InputError when K's evidence did not come from nested sampling.
+        """
+        from ..errors import InputError
+
+        run = self[k].nested
+        if run is None:
+            raise InputError(f"K = {k} has no nested-sampling run (its evidence is "
+                             f"{self[k].method!r}); use method='nested' or 'auto'")
+        return run.plot(kind, **kwargs)
 
     def summary(self):
         """Table (pandas DataFrame), one row per candidate K (index ``k``).

@@ -25,8 +25,10 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from .._budget import check_memory
+from .._progress import progress_bar
 from .._validation import as_rng, integer, positive_float
 from ..errors import InputError
+from ..measurement import is_plain
 from ..model import Model
 from ..priors import CountPrior, ScenePrior, UniformCount, default_priors
 from .decide import finish, next_escalation
@@ -162,6 +164,8 @@ def select_k(
     method: str = "auto",
     options: SelectOptions | None = None,
     rng: np.random.Generator | int | None = None,
+    progress: bool = True,
+    frames: bool = False,
 ) -> SelectionResult:
     """Evidence for K = 0..k_max sources and the posterior over K.
 
@@ -170,9 +174,11 @@ def select_k(
     Parameters
     ----------
     model : Model
-        Forward model with known noise sd ``model.sigma``.
-    data : ndarray, shape (N,)
-        One snapshot of the N sub-sensor readings.
+        Forward model.  With Gaussian noise of known sd and no nuisance terms the
+        pipeline below; any other noise model or nuisance terms (their extras
+        integrated under their priors) go through :mod:`olsbayes.select.general`.
+    data : ndarray, shape (N,), or (F, N) with ``frames``
+        One snapshot of the N sub-sensor readings (or F frames of one scene).
     k_max : int
         Largest number of sources considered, 0 <= k_max <= min(8, (N-1)//(d+1)).
     priors : None, mapping {K: ScenePrior} or callable K -> ScenePrior
@@ -197,37 +203,76 @@ def select_k(
     rng : Generator or seed, optional
         All randomness (ML restarts, importance and nested sampling); streams
         spawned per K.
+    progress : bool
+        A status line on stderr while the call lasts (after a few seconds): the K
+        being worked on and how (importance sampling, nested sampling, with the
+        nested run's own status line).
+    frames : bool
+        ``data`` holds F frames of one static scene.
 
     Returns
     -------
     SelectionResult
     """
+    if frames is not False or (isinstance(model, Model) and not is_plain(model)):
+        return _general(model, data, k_max, priors, k_prior, i_max, method, options, rng,
+                        frames)
     t0 = time.perf_counter()
     data, k_max, options = _check(model, data, k_max, method, options)
+    if not isinstance(progress, (bool, np.bool_)):
+        raise InputError(f"progress must be True or False; got {progress!r}")
     prior_of = _prior_factory(model, data, priors, i_max)
     scene_priors = {k: prior_of(k) for k in range(1, k_max + 1)}
     log_pk = _count_prior(k_prior, k_max)
     streams = [s.spawn(3) for s in as_rng(rng).spawn(k_max + 1)]  # fit, nested, importance
 
-    t_fit = time.perf_counter()
-    fitted = fit_all(model, data, k_max, method=options.ml_method, options=options.ml_options,
-                     rngs=[s[0] for s in streams])
-    t_fit = (time.perf_counter() - t_fit) / max(k_max, 1)
-    works: list[KWork] = [noise_work(model, data)]
-    for k in range(1, k_max + 1):
-        works.append(_evidence(model, data, k, fitted, scene_priors[k], works, method,
-                               options, streams[k], t_fit))
-    escalated: dict[int, str] = {}
-    if method == "auto":
-        escalated = _escalate(model, data, works, log_pk, scene_priors, options, streams)
+    with progress_bar(enabled=bool(progress), desc="select_k", unit=" K",
+                      total=k_max) as bar:
+        bar.set_postfix_str(f"ML fits of K = 1..{k_max}", refresh=False)
+        t_fit = time.perf_counter()
+        fitted = fit_all(model, data, k_max, method=options.ml_method,
+                         options=options.ml_options, rngs=[s[0] for s in streams])
+        t_fit = (time.perf_counter() - t_fit) / max(k_max, 1)
+        works: list[KWork] = [noise_work(model, data)]
+        for k in range(1, k_max + 1):
+            works.append(_evidence(model, data, k, fitted, scene_priors[k], works, method,
+                                   options, streams[k], t_fit, bar))
+            bar.update(1)
+        escalated: dict[int, str] = {}
+        if method == "auto":
+            escalated = _escalate(model, data, works, log_pk, scene_priors, options, streams,
+                                  bar)
     return finish(works, log_pk, method, escalated, options.decision,
                   time.perf_counter() - t0)
 
 
+def _general(model: Model, data: object, k_max: object, priors: object, k_prior: object,
+             i_max: object, method: object, options: object, rng: object, frames: object
+             ) -> SelectionResult:
+    """select_k for other noise models, nuisance terms or frames (arguments checked first)."""
+    from .general import select_general
+
+    high = min(K_MAX_LIMIT, (model.n_sensors - 1) // (model.n_loc + 1))
+    k_max = integer("k_max", k_max, low=0, high=high)
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}; got {method!r}")
+    if options is None:
+        options = SelectOptions()
+    elif not isinstance(options, SelectOptions):
+        raise InputError(f"options must be an olsbayes.select.SelectOptions or None; "
+                         f"got {type(options).__name__}")
+    return select_general(model, data, k_max, priors=priors,
+                          log_pk=_count_prior(k_prior, k_max), i_max=i_max, method=method,
+                          options=options, rng=rng, frames=frames)
+
+
 def _evidence(model: Model, data: np.ndarray, k: int, fitted: dict, prior: ScenePrior,
               works: list[KWork], method: str, options: SelectOptions,
-              streams: list[np.random.Generator], t_fit: float) -> KWork:
-    """The evidence of K sources by ``method`` (before any escalation of ``auto``)."""
+              streams: list[np.random.Generator], t_fit: float, bar) -> KWork:
+    """The evidence of K sources by ``method`` (before any escalation of ``auto``).
+
+    ``bar``: the status line, told which K is worked on and how.
+    """
     if method in ("bic", "aic"):
         return information_criterion(model, k, fitted[k], method, t_fit)
     lap = options.laplace
@@ -235,22 +280,26 @@ def _evidence(model: Model, data: np.ndarray, k: int, fitted: dict, prior: Scene
     if (method != "nested" and lap.importance_draws and k <= MAX_SOURCES
             and (w.reasons or not np.isfinite(w.value))):
         lower = [fitted[j][1] for j in (k - 1, k - 2, k - 3) if j >= 1]
+        bar.set_postfix_str(f"K = {k}: importance sampling")
         w = mixture_work(model, data, w, prior, lower, lap.importance_draws, rng=streams[2])
     gain = w.log_likelihood - max(v.log_likelihood for v in works)
     if not np.isfinite(w.value) and gain >= RIDGE_GAIN:
         # the data need more than K-1 sources but K is not identifiable
         w = ridge_work(model, w, prior)
     if method == "nested":
-        w = nested_work(model, data, w, prior, options.nested, rng=streams[1])
+        bar.set_postfix_str(f"K = {k}: nested sampling")
+        w = nested_work(model, data, w, prior, options.nested, rng=streams[1],
+                        progress=not bar.disable)
     return w
 
 
 def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.ndarray,
               scene_priors: dict[int, ScenePrior], options: SelectOptions,
-              streams: list[list[np.random.Generator]]) -> dict[int, str]:
+              streams: list[list[np.random.Generator]], bar) -> dict[int, str]:
     """``auto``: recompute the K in doubt by nested sampling, most probable first.
 
-    ``works`` is updated in place; returns {K: why} of the K sent.
+    ``works`` is updated in place; returns {K: why} of the K sent.  ``bar``: the
+    status line.
     """
     escalated: dict[int, str] = {}
     while len(escalated) < options.decision.max_escalations:
@@ -259,6 +308,9 @@ def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.nda
             break
         k, why = nxt
         escalated[k] = why
+        bar.total += 1
+        bar.set_postfix_str(f"K = {k}: nested sampling (the evidence is in doubt)")
         works[k] = nested_work(model, data, works[k], scene_priors[k], options.nested,
-                               rng=streams[k][1])
+                               rng=streams[k][1], progress=not bar.disable)
+        bar.update(1)
     return escalated

@@ -15,18 +15,20 @@ see :mod:`~olsbayes.studies.scoring`; the estimator is an
 and :mod:`~olsbayes.studies.sbc` (simulation-based calibration).
 """
 
-from ._work import trial_settings, vectorized
+from ._work import trial_outputs, trial_settings, vectorized
 from .checkpoint import Checkpoint
 from .estimator_spec import ESTIMATORS, Estimator, as_estimator
 from .executors import EXECUTORS, make_backend
 from .grid import Setting
-from .runner import run_study, trial_name
+from .runner import dataset_seed, run_study, trial_name
 from .seeds import study_entropy, trial_seed
 
 __all__ = [
     "run_study",
     "vectorized",
     "trial_settings",
+    "trial_outputs",
+    "dataset_seed",
     "Setting",
     "Estimator",
     "as_estimator",

@@ -24,12 +24,15 @@ __all__ = [
     "is_vectorized",
     "trial_settings",
     "declared_settings",
+    "trial_outputs",
+    "declared_outputs",
     "check_signature",
     "stack_outputs",
 ]
 
 _FLAG = "olsbayes_vectorized"
 _SETTINGS = "olsbayes_settings"
+_OUTPUTS = "olsbayes_outputs"
 
 
 def vectorized(fn: Callable) -> Callable:
@@ -83,6 +86,42 @@ def trial_settings(*names: str, **parsers: Callable[[object, str], object]) -> C
 def declared_settings(fn: Callable) -> tuple[frozenset[str] | None, Mapping[str, Callable]]:
     """(accepted setting names or None when undeclared, parsers) of a trial."""
     return getattr(fn, _SETTINGS, (None, MappingProxyType({})))
+
+
+def trial_outputs(**described: tuple[str, str]) -> Callable:
+    """Describe a trial's outputs; :func:`~olsbayes.studies.run_study` writes them as attributes.
+
+    Parameters
+    ----------
+    **described : (str, str)
+        ``name=(long_name, units)`` per output, e.g. ``dir_err_rms=("RMS direction
+        error", "rad")``; units in the CF convention (``"1"`` for a pure number, ``""``
+        for none, e.g. a flag or a count of things).
+
+    Returns
+    -------
+    callable
+        A decorator that records the description on the function and returns it.
+    """
+    table = {}
+    for name, pair in described.items():
+        if not (isinstance(pair, tuple) and len(pair) == 2
+                and all(isinstance(v, str) for v in pair)):
+            raise InputError(f"trial_outputs {name}: give a (long_name, units) pair of strings; "
+                             f"got {pair!r}")
+        table[name] = pair
+    frozen = MappingProxyType(table)
+
+    def mark(fn: Callable) -> Callable:
+        setattr(fn, _OUTPUTS, frozen)
+        return fn
+
+    return mark
+
+
+def declared_outputs(fn: Callable) -> Mapping[str, tuple[str, str]]:
+    """``{name: (long_name, units)}`` of a trial's described outputs (empty when undeclared)."""
+    return getattr(fn, _OUTPUTS, MappingProxyType({}))
 
 
 def check_signature(trial: Callable, name: str) -> None:

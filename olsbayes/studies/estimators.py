@@ -15,9 +15,9 @@ The dataset's ``estimator`` coordinate holds the canonical labels, e.g.
 :func:`olsbayes.studies.scoring.ring_truth`; optionally ``i_max`` (intensity
 prior bound of the Bayesian estimators and of ``select``, default 3 * intensity)
 and ``select`` (also choose K with :func:`~olsbayes.select.select_k`, method
-"laplace", reporting ``k_hat``).  Every trial draws only from its own Generator
-(the scene, its noise, then the estimator's randomness), so results do not
-depend on chunking.
+"laplace", reporting ``k_hat``; NaN for trials without it).  Every trial draws
+only from its own Generator (the scene, its noise, then the estimator's
+randomness), so results do not depend on chunking.
 """
 
 from __future__ import annotations
@@ -31,16 +31,33 @@ from ..errors import OlsBayesWarning
 from ..exchange import match_sources
 from ..geometry import Ring
 from ..model import Model
-from ._work import trial_settings, vectorized
+from ._work import trial_outputs, trial_settings, vectorized
 from .estimator_spec import Estimator, as_estimator
 from .grid import Setting
 from .scoring import ring_truth, score
 from .trials import RING_SETTINGS
 
-__all__ = ["ring_estimate", "OUTPUT_NAMES"]
+__all__ = ["ring_estimate", "OUTPUT_NAMES", "OUTPUTS"]
 
 #: Output names of :func:`ring_estimate` besides the scores.
 OUTPUT_NAMES = ("ll_gain", "seconds", "cpu_seconds", "converged", "n_evaluations", "k_hat")
+
+#: (long_name, units) of every output of :func:`ring_estimate` (the dataset's attributes).
+OUTPUTS = {
+    "dir_err_rms": ("RMS over sources of the direction error", "rad"),
+    "dir_crlb_rms": ("RMS over sources of the CRLB sd of the direction", "rad"),
+    "dir_z2": ("mean over sources of (direction error / CRLB sd)^2", "1"),
+    "int_z2": ("mean over sources of (intensity error / CRLB sd)^2", "1"),
+    "max_z": ("largest |error| / CRLB sd over all parameters", "1"),
+    "resolvable": ("Fisher matrix of the true scene is regular (1) or singular (0)", ""),
+    "on_kink": ("a true source lies on a sub-sensor's horizon (1) or not (0)", ""),
+    "ll_gain": ("log-likelihood of the estimate minus that of the truth", "nats"),
+    "seconds": ("wall time per estimate", "s"),
+    "cpu_seconds": ("CPU time per estimate in the trial's process", "s"),
+    "converged": ("the estimator met its stopping rule (1) or not (0)", ""),
+    "n_evaluations": ("likelihood or model evaluations of the estimate", ""),
+    "k_hat": ("number of sources chosen by select_k (NaN: not chosen)", ""),
+}
 
 
 def _i_max(settings: dict) -> float:
@@ -155,7 +172,7 @@ def _select(model: Model, data: np.ndarray, k: int, settings: dict, rng) -> int:
 
     k_max = min(k + 1, (model.n_sensors - 1) // 2)
     return int(select_k(model, data, k_max=k_max, method="laplace", rng=rng,
-                        i_max=_i_max(settings)).best)
+                        i_max=_i_max(settings), progress=False).best)
 
 
 def _timed_estimates(model: Model, data: np.ndarray, k: int, est: Estimator, settings: dict,
@@ -182,6 +199,7 @@ def _timed_estimates(model: Model, data: np.ndarray, k: int, est: Estimator, set
 
 
 @vectorized
+@trial_outputs(**OUTPUTS)
 @trial_settings(**RING_SETTINGS, slots=Setting("int", 1, 10_000), kink=Setting("bool"),
                 i_max=Setting("float", high=1e12, positive=True), select=Setting("bool"),
                 estimator=as_estimator)
@@ -204,7 +222,7 @@ def ring_estimate(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
         (wall time per estimate; for the batched fast fit the batch time / T),
         ``cpu_seconds`` (the same in CPU time of this process: unlike wall time,
         not inflated when other processes share the cores), ``converged``,
-        ``n_evaluations``, ``k_hat`` (-1 unless ``select``) and ``ll_gain``,
+        ``n_evaluations``, ``k_hat`` (NaN unless ``select``) and ``ll_gain``,
         log-likelihood of the estimate minus that of the truth.
     """
     est = as_estimator(settings.get("estimator", "fast"), "settings['estimator']")
@@ -212,7 +230,7 @@ def ring_estimate(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
     k = int(settings.get("n_sources", 1))
     truth = np.stack([ring_truth(model, settings, rng=r) for r in rngs])
     data = np.stack([model.simulate(x, rng=r) for x, r in zip(truth, rngs)])
-    k_hat = np.full(len(rngs), -1, np.int64)
+    k_hat = np.full(len(rngs), np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)  # recorded as flags instead
         _warm_up(model, k, est, settings)

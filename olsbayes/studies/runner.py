@@ -22,14 +22,20 @@ from .._io import atomic_path, ensure_dir
 from .._validation import _short, integer
 from .._version import __version__
 from ..errors import InputError
-from ._work import check_signature, declared_settings, is_vectorized, run_chunk
+from ._work import (
+    check_signature,
+    declared_outputs,
+    declared_settings,
+    is_vectorized,
+    run_chunk,
+)
 from .checkpoint import Checkpoint, ChunkRecord, fingerprint_key, recorded_seed
 from .executors import make_backend
 from .grid import Grid, check_fixed, check_known, make_grid, settings_json
 from .results import Results, check_budget, memory_limit
 from .seeds import study_entropy
 
-__all__ = ["run_study", "trial_name"]
+__all__ = ["run_study", "trial_name", "dataset_seed", "seed_attrs"]
 
 
 def trial_name(trial: Callable) -> str:
@@ -67,18 +73,53 @@ def _fingerprint(trial: Callable, grid: Grid, fixed: dict, n_trials: int, entrop
     }
 
 
-def _dataset(full: dict, grid: Grid, fingerprint: dict) -> Any:
+def seed_attrs(entropy: int) -> dict[str, Any]:
+    """The dataset attributes of a study's root seed: numeric, plus its exact decimal text.
+
+    ``seed`` is an int64 when the seed fits (every seed a user types); a larger
+    entropy (128 bits drawn when no seed is given) is stored as an array of uint64
+    words, least significant first, that :func:`dataset_seed` reassembles.
+    ``seed_decimal`` holds the same number as text.
+    """
+    if entropy < 2**63:
+        return {"seed": np.int64(entropy), "seed_decimal": str(entropy)}
+    words = []
+    rest = entropy
+    while rest:
+        words.append(rest & (2**64 - 1))
+        rest >>= 64
+    return {"seed": np.array(words, dtype=np.uint64), "seed_decimal": str(entropy)}
+
+
+def dataset_seed(ds: Any) -> int:
+    """The root seed of a study dataset (as ``rng`` for :func:`run_study` to repeat it)."""
+    seed = ds.attrs["seed"]
+    if isinstance(seed, str):  # written by an older version
+        return int(seed)
+    words = np.atleast_1d(np.asarray(seed)).astype(np.uint64)
+    return sum(int(w) << (64 * i) for i, w in enumerate(words))
+
+
+#: Attributes of the trial coordinate.
+_TRIAL_ATTRS = {"long_name": "trial index within a grid cell"}
+
+
+def _dataset(full: dict, grid: Grid, fingerprint: dict, described: Mapping) -> Any:
     import xarray as xr
 
     dims = grid.names + ("trial",)
-    data_vars = {
-        name: (dims + tuple(f"{name}_dim{i}" for i in range(arr.ndim - len(dims))), arr)
-        for name, arr in full.items()
-    }
+    data_vars = {}
+    for name, arr in full.items():
+        long_name, units = described.get(name, (name, None))
+        attrs = {"long_name": long_name}
+        if units:
+            attrs["units"] = units
+        data_vars[name] = (dims + tuple(f"{name}_dim{i}" for i in range(arr.ndim - len(dims))),
+                           arr, attrs)
     coords = dict(grid.coords())
-    coords["trial"] = np.arange(fingerprint["n_trials"])
+    coords["trial"] = ("trial", np.arange(fingerprint["n_trials"]), _TRIAL_ATTRS)
     attrs = {
-        "seed": fingerprint["seed"],
+        **seed_attrs(int(fingerprint["seed"])),
         "olsbayes_version": fingerprint["olsbayes_version"],
         "trial_function": fingerprint["trial"],
         "vectorized": int(fingerprint["vectorized"]),
@@ -221,8 +262,11 @@ def run_study(
     Returns
     -------
     xarray.Dataset
-        One variable per trial output, dims ``(*grid axes, "trial", <name>_dim0, ...)``;
-        attrs ``seed`` (str), ``olsbayes_version``, ``trial_function``, ``grid`` and
+        One variable per trial output, dims ``(*grid axes, "trial", <name>_dim0, ...)``,
+        each with ``long_name`` and ``units`` attributes as the trial describes them
+        (:func:`~olsbayes.studies.trial_outputs`; ``long_name`` = its name otherwise);
+        attrs ``seed`` (numeric: see :func:`seed_attrs`, :func:`dataset_seed`) and
+        ``seed_decimal``, ``olsbayes_version``, ``trial_function``, ``grid`` and
         ``fixed_settings`` (JSON), ``n_trials``, ``study_key``.
     """
     if not callable(trial):
@@ -260,7 +304,7 @@ def run_study(
             ckpt.close()
     shape = g.shape + (n_trials,)
     full = {k: v.reshape(shape + v.shape[2:]) for k, v in results.arrays.items()}
-    ds = _dataset(full, g, fp)
+    ds = _dataset(full, g, fp, declared_outputs(trial))
     if out is not None:
         with atomic_path(out) as tmp:
             ds.to_netcdf(tmp, engine="h5netcdf")

@@ -22,7 +22,7 @@ from scipy import stats
 from ..errors import OlsBayesWarning
 from ..geometry import Ring
 from ..model import Model
-from ._work import trial_settings
+from ._work import trial_outputs, trial_settings
 
 __all__ = ["sbc_posterior", "sbc_k", "ranks_of", "RankTest", "rank_test", "N_DRAWS"]
 
@@ -54,6 +54,11 @@ def _thinned(res, n: int) -> np.ndarray:
     return pool[idx]
 
 
+@trial_outputs(rank=("rank of the truth among the thinned draws, per parameter", ""),
+               in50=("truth inside the central 50 % interval, per parameter", ""),
+               in90=("truth inside the central 90 % interval, per parameter", ""),
+               converged=("the sampler met its convergence criteria (1) or not (0)", ""),
+               seconds=("wall time of the posterior run", "s"))
 @trial_settings("n_sensors", "sigma", "n_sources", "i_max", "tau_multiple", "max_steps")
 def sbc_posterior(settings: dict, *, rng: np.random.Generator) -> dict:
     """One SBC replicate of :func:`olsbayes.posterior.sample` on a ring.
@@ -89,6 +94,9 @@ def sbc_posterior(settings: dict, *, rng: np.random.Generator) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
+@trial_outputs(pit=("randomised PIT of the true K under p(K | data)", "1"),
+               k_true=("true number of sources", ""), k_best=("chosen number of sources", ""),
+               p_true=("p(K_true | data)", "1"))
 @trial_settings("n_sensors", "sigma", "k_max", "method", "i_max")
 def sbc_k(settings: dict, *, rng: np.random.Generator) -> dict:
     """One SBC replicate of the posterior over K from :func:`olsbayes.select.select_k`.
@@ -108,7 +116,7 @@ def sbc_k(settings: dict, *, rng: np.random.Generator) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OlsBayesWarning)
         res = select_k(model, data, k_max=k_max, method=str(settings.get("method", "laplace")),
-                       rng=rng, i_max=float(settings.get("i_max", 2.0)))
+                       rng=rng, i_max=float(settings.get("i_max", 2.0)), progress=False)
     p, ks = np.asarray(res.probabilities, float), np.asarray(res.ks)
     p_true = float(p[ks == k_true].sum())
     pit = float(p[ks < k_true].sum()) + rng.uniform() * p_true

@@ -24,7 +24,7 @@ import numpy as np
 
 from .._validation import as_rng
 from ..errors import InputError
-from ._work import trial_settings
+from ._work import trial_outputs, trial_settings
 from .sbc import _model, _prior
 
 __all__ = ["exact_ring_posterior", "weighted_cdf", "sbc_exact"]
@@ -129,6 +129,8 @@ def weighted_cdf(draws: np.ndarray, weights: np.ndarray, value: np.ndarray) -> n
     return np.asarray(weights) @ (np.asarray(draws) < np.asarray(value))
 
 
+@trial_outputs(cdf=("posterior CDF at the true value, per parameter", "1"),
+               ess=("effective number of importance draws", ""))
 @trial_settings("n_sensors", "sigma", "n_sources", "i_max", "n_grid")
 def sbc_exact(settings: dict, *, rng: np.random.Generator) -> dict:
     """One SBC replicate of :func:`exact_ring_posterior`.

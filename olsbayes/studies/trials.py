@@ -11,7 +11,7 @@ import numpy as np
 
 from ..geometry import Ring
 from ..model import Model
-from ._work import trial_settings, vectorized
+from ._work import trial_outputs, trial_settings, vectorized
 from .grid import Setting
 
 __all__ = ["ring_scene", "noise_check", "noise_check_batch", "RING_SETTINGS"]
@@ -47,6 +47,15 @@ def _ring_model(settings: dict) -> Model:
     return Model(Ring(int(settings["n_sensors"])), float(settings["sigma"]))
 
 
+#: (long_name, units) of the outputs of :func:`noise_check` and :func:`noise_check_batch`.
+NOISE_OUTPUTS = {
+    "chi2": ("residual sum of squares / sigma^2 at the true scene", "1"),
+    "theta0": ("direction of the first source", "rad"),
+    "moments": ("mean and variance of the standardised residual", "1"),
+}
+
+
+@trial_outputs(**NOISE_OUTPUTS)
 @trial_settings(**RING_SETTINGS)
 def noise_check(settings: dict, *, rng: np.random.Generator) -> dict:
     """Simulate one ring scene and measure its noise: chi2 of the truth (~ chi2_N).
@@ -65,6 +74,7 @@ def noise_check(settings: dict, *, rng: np.random.Generator) -> dict:
 
 
 @vectorized
+@trial_outputs(**NOISE_OUTPUTS)
 @trial_settings(**RING_SETTINGS)
 def noise_check_batch(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
     """Vectorised :func:`noise_check`: the same numbers, one batched model call."""

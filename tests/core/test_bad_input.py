@@ -159,7 +159,6 @@ CONFIG_CASES = [
     ("key of another geometry", _SENSOR + "nx = 3\n", "unknown key 'nx'"),
     ("missing geometry", "[sensor]\nn = 30\nsigma = 0.01\n", "geometry is required"),
     ("unknown geometry", '[sensor]\ngeometry = "cube"\nsigma = 0.1\n', "geometry must be one of"),
-    ("missing sigma", '[sensor]\ngeometry = "ring"\nn = 30\n', "sigma is required"),
     ("n as string", '[sensor]\ngeometry = "ring"\nn = "30"\nsigma = 0.01\n', "integer"),
     ("n as float", '[sensor]\ngeometry = "ring"\nn = 30.0\nsigma = 0.01\n', "integer"),
     ("huge n", '[sensor]\ngeometry = "ring"\nn = 9223372036854775807\nsigma = 0.01\n', "n must"),
@@ -206,6 +205,7 @@ def _build(text, tmp_path=None):
 
 
 BUILD_CASES = [
+    ("missing sigma", '[sensor]\ngeometry = "ring"\nn = 30\n', "sigma is required"),
     ("p without cosine_power", _SENSOR + "p = 3.0\n", "p is only used"),
     ("ring directions on a sphere",
      '[sensor]\ngeometry = "sphere"\nlayout = "fibonacci"\nn = 50\nsigma = 0.1\n' + _SCENE,

@@ -82,19 +82,18 @@ def test_kink_case_sensor_exactly_on_the_horizon():
     """A sub-sensor exactly pi/2 from the source sits on the kink of costn.
 
     There c = 0 and dg/dc jumps from 0 to 1, so the likelihood is not
-    differentiable and the Fisher information depends on the one-sided derivative.
-    With the dark-side convention (dg/dc = 0 at c = 0) both horizon sub-sensors of
-    an N = 32 ring are dropped from the angle information: sum sin^2 = N/4 - 1 = 7
-    instead of 8, so sd(theta) = sqrt(8/7) x Eq. 3.  Moving the source by any eps
-    lights exactly one of the two (they are pi apart), giving back N/4 = 8 and
-    Eq. 3 from both sides.  The intensity bound is unaffected (they add c^2 = 0).
+    differentiable.  The rule: the mean of the Fisher matrices with the horizon
+    sub-sensors lit and dark.  On an N = 32 ring both horizon sub-sensors (pi apart)
+    add sin^2 = 1 when lit: sum sin^2 = 7 dark, 9 lit, mean 8 = N/4, so Eq. 3 holds
+    -- and moving the source by any eps lights exactly one of the two, giving N/4
+    and Eq. 3 from both sides.  The intensity bound is unaffected (they add c^2 = 0).
     """
     n, sigma, inten = 32, 0.01, 2.0
     model = Model(_ring_with_exact_horizon(n), sigma)
     th3, i3 = crlb_eq3(n, sigma, inten)
     with pytest.warns(KinkWarning, match="90 deg"):
         res = crlb(model, Scene(directions=[0.0], intensities=[inten]))
-    assert res.direction_std[0] / th3 == pytest.approx(np.sqrt(8 / 7), rel=1e-12)
+    assert res.direction_std[0] / th3 == pytest.approx(1.0, rel=1e-12)
     assert res.intensity_std[0] / i3 == pytest.approx(1.0, rel=1e-12)
     for eps in (1e-6, -1e-6):
         with warnings.catch_warnings():
@@ -102,6 +101,51 @@ def test_kink_case_sensor_exactly_on_the_horizon():
             side = crlb(model, Scene(directions=[eps], intensities=[inten]))
         # sin^2(pi/2 - eps) = 1 - eps^2: Eq. 3 up to O(eps^2)
         assert side.direction_std[0] / th3 == pytest.approx(1.0, abs=1e-10)
+
+
+@pytest.mark.parametrize("n", [8, 12, 16, 30, 32])
+def test_horizon_rule_does_not_depend_on_the_rounding_of_cos(n):
+    """Sources placed so that sub-sensors sit on their horizon on the rounded Ring(n).
+
+    cos(pi/2) rounds to +6e-17 for some of these placements and to -2e-16 for
+    others, which once lit or darkened the horizon sub-sensors (N = 8 at 0 gave
+    sqrt(N / (N + 4)) times Eq. 3, at 3 pi / 4 exactly Eq. 3; N = 30 at pi/2 gave
+    sqrt(30 / 34)).  Under the mean rule every even ring gives Eq. 3 exactly, and
+    the exact-normal ring of the same N the same bound.
+    """
+    th3 = crlb_eq3(n, 0.01, 1.0)[0]
+    h = 2 * np.pi / n
+    placements = [t for t in (0.0, np.pi / 2, np.pi / 4, 3 * h, np.pi / 2 + h)
+                  if kink_sources(Model(Ring(n), 0.01), np.array([t, 1.0]))[0]]
+    assert placements  # the case is exercised for every n
+    for theta in placements:
+        with pytest.warns(KinkWarning):
+            ratio = _ratio(n, theta)[0]
+        assert ratio == pytest.approx(1.0, abs=1e-12)
+    if n % 4 == 0:
+        with pytest.warns(KinkWarning):
+            exact = crlb(Model(_ring_with_exact_horizon(n), 0.01),
+                         Scene(directions=[0.0], intensities=[1.0]))
+        assert exact.direction_std[0] / th3 == pytest.approx(1.0, abs=1e-12)
+
+
+def test_horizon_rule_is_the_midpoint_of_the_one_sided_limits_on_an_odd_ring():
+    """Odd N: one sub-sensor on the horizon; the Fisher matrix there is the mean of
+    the two one-sided limits (the source moved off the horizon by +-eps)."""
+    n = 31
+    model = Model(Ring(n), 0.01)
+    theta = model.array.angles[3] + np.pi / 2  # sub-sensor 3 on the horizon
+    x = np.array([theta, 1.0])
+    assert kink_sources(model, x)[0]
+    with pytest.warns(KinkWarning):
+        mid = crlb(model, Scene(directions=[theta], intensities=[1.0])).fisher
+    eps = 1e-7
+    sides = [model.fisher(np.array([theta + s, 1.0])) for s in (eps, -eps)]
+    # the sides differ by the horizon sub-sensor's contribution (I^2 sin^2 = 1 / sigma^2)
+    assert abs(sides[0][0, 0] - sides[1][0, 0]) == pytest.approx(1e4, rel=1e-6)
+    # each entry moves by at most N I^2 / sigma^2 per rad: O(eps) off the horizon
+    np.testing.assert_allclose(mid, 0.5 * (sides[0] + sides[1]), rtol=0,
+                               atol=2 * n * eps / 0.01**2)
 
 
 def test_kink_detected_on_a_standard_ring():
@@ -187,3 +231,29 @@ def test_closed_forms_reject_bad_input():
         crlb_eq3(30, 0.01, 0.0)
     with pytest.raises(InputError, match="separation"):
         crlb_eq4(30, 0.01, 1.0, np.nan)
+
+
+@pytest.mark.parametrize("n", [29, 30, 31, 32])
+def test_resolution_limits_of_two_equal_sources(n):
+    """What the README says: the Fisher matrix of two equal sources dtheta apart is
+    singular at every placement for dtheta < h/2 (odd N) or < h (even N), and regular at
+    every placement for dtheta > h (odd N) or > 2h (even N), h = 2 pi / N; Eq. 4's
+    threshold, half a spacing, is finite from h/2 on.  400 random placements each."""
+    model = Model(Ring(n), 0.01)
+    h = 2 * np.pi / n
+    rng = np.random.default_rng(n)
+    odd = n % 2 == 1
+
+    def singular_fraction(sep_h):
+        th = rng.uniform(-np.pi, np.pi, 400)
+        one = np.ones_like(th)
+        x = np.stack([th, one, th + sep_h * h, one], axis=1)
+        return bound_covariance(model.fisher(x))[2].any(axis=-1).mean()
+
+    below, above = (0.45, 1.02) if odd else (0.98, 2.02)
+    assert singular_fraction(below) == 1.0
+    assert singular_fraction(above) == 0.0
+    middle = singular_fraction(0.75 if odd else 1.5)
+    assert 0.3 < middle < 0.7  # in between it depends on the placement
+    assert np.isinf(crlb_eq4(n, 0.01, 1.0, 0.49 * h)[0])
+    assert np.isfinite(crlb_eq4(n, 0.01, 1.0, 0.51 * h)[0])

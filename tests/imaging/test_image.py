@@ -318,6 +318,13 @@ def test_olss_scene_and_the_antipodal_rank_collapse():
 
     bm = olss_bitmap()
     assert bm.shape == (16, 19) and bm.sum() == 68
+    # the paper-like mask: 12-row letters, 73 bright pixels, the same columns
+    tall = olss_bitmap(letter_rows=12)
+    assert tall.shape == (16, 19) and tall.sum() == 73
+    assert np.count_nonzero(tall.any(axis=1)) == 12 and np.count_nonzero(bm.any(axis=1)) == 11
+    np.testing.assert_array_equal(tall.any(axis=0), bm.any(axis=0))
+    with pytest.raises(InputError, match="letter_rows must be 11 or 12"):
+        olss_bitmap(letter_rows=13)
     dirs = olss_directions("endpoints")
     assert dirs.shape == (304, 2)
     assert np.isclose(np.abs(dirs[:, 0]).max(), np.pi / 2)
@@ -351,3 +358,32 @@ def test_sky_maps_return_figures():
         plot_sky([0.0], [0.0], [1.0], projection="hammer")
     with pytest.raises(InputError, match="equal length"):
         plot_sky([0.0, 1.0], [0.0], [1.0])
+
+
+def test_sky_map_is_readable_colour_bar_neutral_background_and_separate_ticks():
+    """A perceptual colormap on a neutral background (the brightest value is not drawn
+    in the background's colour), a colour bar, and tick labels that do not overlap."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+
+    from olsbayes.plotting import plot_sphere_response
+
+    model = ob.Model(ob.Sphere.grid(9, 18), sigma=0.01)
+    dirs = np.array([[0.1, 0.2], [2.0, -0.3]])
+    y = design_matrix(model, dirs) @ np.array([1.0, 0.4])
+    fig = plot_sphere_response(model, y, projection="mollweide", label="reading")
+    ax, cax = fig.axes[0], fig.axes[-1]
+    assert cax is not ax and cax.get_ylabel() == "reading"  # the colour bar
+    art = ax.collections[0]
+    assert art.get_cmap().name in ("viridis", "cividis", "magma", "inferno", "plasma")
+    background = np.array(to_rgb(ax.get_facecolor()))
+    assert np.ptp(background) < 1e-9 and 0.2 < background[0] < 0.9  # neutral grey
+    for value in (art.norm.vmin, art.norm.vmax):  # neither end of the scale is the background
+        assert np.abs(np.array(art.get_cmap()(art.norm(value))[:3]) - background).max() > 0.1
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    for labels in (ax.get_xticklabels(), ax.get_yticklabels()):
+        boxes = [t.get_window_extent(renderer) for t in labels if t.get_text()]
+        assert len(boxes) >= 3
+        assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    plt.close(fig)

@@ -191,3 +191,16 @@ def test_cli_study_reads_estimator_tables(tmp_path, capsys):
         assert main(["study", str(cfg), "--no-progress", "--set", setting]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err
+
+
+def test_dataset_variables_carry_long_name_and_units_and_k_hat_is_nan_without_select():
+    """Every ring_estimate output has long_name (and units where it has any); k_hat of a
+    study that does not choose K is NaN, never a number that averages into the mean."""
+    ds = _study({"estimator": ["fast"]})
+    for name in ds.data_vars:
+        assert ds[name].attrs["long_name"] and "units" in ds[name].attrs or name in (
+            "resolvable", "on_kink", "converged", "n_evaluations", "k_hat")
+    assert ds.dir_err_rms.attrs["units"] == "rad" and ds.ll_gain.attrs["units"] == "nats"
+    assert np.isnan(ds.k_hat.values).all()
+    chosen = _study({"estimator": ["fast"]}, fixed={**FIXED, "select": True})
+    assert set(np.unique(chosen.k_hat.values)) <= {0.0, 1.0, 2.0}

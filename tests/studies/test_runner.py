@@ -16,7 +16,7 @@ import pytest
 import xarray as xr
 
 from olsbayes import InputError
-from olsbayes.studies import run_study, trial_seed, vectorized
+from olsbayes.studies import dataset_seed, run_study, trial_seed, vectorized
 from olsbayes.studies._frames import scan
 from olsbayes.studies.checkpoint import read_chunks
 from olsbayes.studies.trials import noise_check, noise_check_batch
@@ -111,7 +111,11 @@ def test_dataset_layout_statistics_and_netcdf_roundtrip(tmp_path):
                    executor="serial", rng=11, out=out, progress=False)
     assert ds.chi2.dims == ("sigma", "n_sensors", "trial")
     assert ds.moments.dims == ("sigma", "n_sensors", "trial", "moments_dim0")
-    assert ds.attrs["seed"] == "11" and ds.attrs["n_trials"] == 400
+    assert ds.attrs["seed"] == 11 and ds.attrs["seed"].dtype == np.int64
+    assert ds.attrs["seed_decimal"] == "11" and ds.attrs["n_trials"] == 400
+    assert ds.chi2.attrs == {"long_name": "residual sum of squares / sigma^2 at the true scene",
+                             "units": "1"}
+    assert ds.theta0.attrs["units"] == "rad" and "long_name" in ds.trial.attrs
     assert "noise_check" in ds.attrs["trial_function"]
     assert '"n_sources": 2' in ds.attrs["fixed_settings"]
     # chi2 of the truth ~ chi2_N: mean N within 4 Monte Carlo standard errors sqrt(2N/T)
@@ -120,6 +124,21 @@ def test_dataset_layout_statistics_and_netcdf_roundtrip(tmp_path):
         assert np.all(np.abs(mean - n) < 4 * np.sqrt(2 * n / 400))
     back = xr.load_dataset(out, engine="h5netcdf")
     assert back.identical(ds)
+    assert dataset_seed(back) == 11
+
+
+def test_seed_without_a_value_given_is_numeric_and_repeats_the_study(tmp_path):
+    """rng=None draws 128 bits: stored as uint64 words that dataset_seed reassembles."""
+    out = tmp_path / "study.nc"
+    ds = run_study(noise_check, {"sigma": [0.1]}, 3, fixed={"n_sensors": 8},
+                   executor="serial", out=out, progress=False)
+    back = xr.load_dataset(out, engine="h5netcdf")
+    seed = dataset_seed(back)
+    assert str(seed) == back.attrs["seed_decimal"]
+    assert np.asarray(back.attrs["seed"]).dtype.kind in "iu"
+    again = run_study(noise_check, {"sigma": [0.1]}, 3, fixed={"n_sensors": 8},
+                      executor="serial", rng=seed, progress=False)
+    np.testing.assert_array_equal(again.chi2.values, ds.chi2.values)
 
 
 def test_bad_inputs_are_refused_with_the_argument_named(tmp_path):
@@ -336,7 +355,7 @@ def test_cli_study_runs_resumes_and_refuses(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err
     assert main(["study", str(cfg), "--resume", "--json", "--no-progress"]) == 0
-    assert '"seed": "3"' in capsys.readouterr().out
+    assert '"seed": 3,' in capsys.readouterr().out  # a number, as in the NetCDF
 
 
 def test_scores_match_exchangeable_sources_and_the_crlb():

@@ -1,0 +1,64 @@
+"""Feedback on long commands: status lines on stderr by default, none with --quiet."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import olsbayes as ob
+from olsbayes.cli import main
+
+
+@pytest.fixture
+def no_delay(monkeypatch):
+    monkeypatch.setattr("olsbayes._progress.DELAY", 0.0)
+
+
+def test_fit_posterior_shows_the_sampler_status_unless_quiet(no_delay, capsys):
+    argv = ["fit", "--posterior", "--seed", "1", "--max-steps", "3000", "--set",
+            "sensor.n=12"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "posterior" in err and "steps needed" in err
+    assert main(argv + ["--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_select_and_image_take_quiet(no_delay, capsys):
+    assert main(["select", "--k-max", "1", "--method", "nested", "--maxcall", "5000",
+                 "--seed", "1", "--set", "sensor.n=12", "--set", "scene.directions=[0.3]",
+                 "--set", "scene.intensities=[1.0]"]) == 0
+    err = capsys.readouterr().err
+    assert "nested sampling" in err
+    assert main(["image", "--seed", "1", "--n-samples", "30", "--quiet"]) == 0
+    assert "imaging" not in capsys.readouterr().err
+    assert main(["image", "--seed", "1", "--n-samples", "30"]) == 0
+    assert "imaging (gibbs" in capsys.readouterr().err
+
+
+@pytest.mark.filterwarnings("ignore:the gibbs chains have not mixed")  # 20 draws: not the point
+def test_image_api_progress_is_checked_and_off_means_silent(capsys):
+    model = ob.Model(ob.Ring(12), 0.01)
+    dirs = np.linspace(-np.pi, np.pi, 4, endpoint=False)
+    data = model.simulate(np.column_stack([dirs, np.full(4, 0.5)]).ravel(), rng=1)
+    with pytest.raises(ob.InputError, match="progress must be True or False"):
+        ob.image(model, data, dirs, progress="yes")
+    ob.image(model, data, dirs, options=ob.imaging.ImageOptions(n_samples=20), rng=1,
+             progress=False)
+    assert capsys.readouterr().err == ""
+
+
+def test_demo_prints_each_part_as_it_is_computed(capsys, monkeypatch):
+    """The ML and CRLB blocks are on stdout before the evidence is computed (a demo
+    whose selection step fails has already shown them), not buffered to the end."""
+    import olsbayes.select
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("stop after the ML part")
+
+    monkeypatch.setattr(olsbayes.select, "select_k", fail)
+    with pytest.raises(RuntimeError, match="stop after the ML part"):
+        main(["demo", "--no-figures", "--quiet"])
+    out = capsys.readouterr().out
+    assert "Maximum-likelihood estimate" in out and "CRLB" in out
+    assert "Evidence for K" not in out
