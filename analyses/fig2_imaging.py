@@ -191,8 +191,13 @@ def figure(keep: dict, sensors: str, out: Path) -> Path:
     # is under the prior of the estimate shown), else the Gaussian prior's closed form
     post, which = ((keep["bounded-gibbs"], "bounded prior") if "bounded-gibbs" in keep
                    else (keep["gaussian"], "Gaussian prior"))
+    # the chains' largest split R-hat on the panel itself: an sd from chains that have
+    # not mixed (R-hat > 1.01) is not the posterior's
+    rhat = "closed form" if post.sampler == "closed-form" else (
+        f"split R-hat {post.rhat:.3g}" + ("" if post.rhat <= 1.01 else ": NOT converged"))
     panels = [("true sources", keep["truth"]), ("raw sub-sensor image", None),
-              ("estimate (bounded MAP)", keep["mode"]), (f"posterior sd ({which})", post.sd)]
+              ("estimate (bounded MAP)", keep["mode"]),
+              (f"posterior sd ({which})\n{rhat}", post.sd)]
     for i, (title, val) in enumerate(panels):
         ax = fig.add_subplot(1, 4, i + 1)
         if val is None:

@@ -18,8 +18,17 @@ sub-sensors" only if the N sub-sensors span pi (a half circle, or counting the
 spacing as pi/N on a full ring).  The measured breakdown on the full ring lies
 near 1.5-2 ring spacings instead (printed below).
 
-``python analyses/fig4_two_sources.py`` (T = 300 per point) or ``--full``
-(T = 2000).  Writes ``fig4_two_sources.png`` and ``.csv`` to ``--out``.
+One placement hides how much the breakdown depends on where the pair sits
+relative to the sub-sensors' horizons, so the same sweep is also run over the
+distribution of placements: ``--placements`` centres uniform on the circle,
+each with its own draws (fast fits).  Plotted: the median and the 10-90 %
+band over placements of the RMS errors and of the CRLB (regular placements),
+and, in a third panel, the share of placements whose Fisher matrix is
+singular (with its 90 % binomial interval) next to that of the fixed one.
+
+``python analyses/fig4_two_sources.py`` (T = 300 per point; 16 placements x 60
+draws) or ``--full`` (T = 2000; 64 placements x 200 draws).  Writes
+``fig4_two_sources.png``, ``.csv`` and ``_placements.csv`` to ``--out``.
 """
 
 from __future__ import annotations
@@ -83,6 +92,40 @@ def measure(sep: float, trials: int, rng: np.random.Generator) -> dict:
     return row
 
 
+def measure_placements(sep: float, n_place: int, draws: int, rng: np.random.Generator) -> dict:
+    """Median and 10-90 % band over random placements (uniform centre) at separation ``sep``.
+
+    Per placement: RMS angle / amplitude errors of ``draws`` fast fits, the exact
+    CRLB (RMS over the two sources) and whether the Fisher matrix is singular.
+    """
+    model = ob.Model(ob.Ring(N), SIGMA)
+    th_err, i_err, th_b, i_b = (np.empty(n_place) for _ in range(4))
+    for j, c in enumerate(rng.uniform(-np.pi, np.pi, n_place)):
+        scene = ob.Scene(directions=[c - sep / 2, c + sep / 2], intensities=[1.0, 1.0])
+        truth = model.canonical(model.pack(scene))
+        data = model.simulate(scene, rng=rng, size=draws)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ob.OlsBayesWarning)
+            res = fit_ml(model, data, 2, warn=False)
+            b = ob.crlb(model, scene.sorted()).std.reshape(2, 2)
+        rms = np.sqrt(np.mean(estimation_errors(model, res.params, truth) ** 2, 0)).reshape(2, 2)
+        th_err[j], i_err[j] = np.sqrt(np.mean(rms ** 2, axis=0))
+        th_b[j], i_b[j] = np.sqrt(np.mean(b ** 2, axis=0))
+    sing = ~(np.isfinite(th_b) & np.isfinite(i_b))
+    out = dict(sep=sep, sep_spacings=sep / (2 * np.pi / N), placements=n_place, draws=draws,
+               singular_share=float(sing.mean()))
+    from scipy import stats
+
+    k = int(sing.sum())
+    out["singular_q05"] = float(stats.beta.ppf(0.05, k, n_place - k + 1)) if k else 0.0
+    out["singular_q95"] = float(stats.beta.ppf(0.95, k + 1, n_place - k)) if k < n_place else 1.0
+    for name, v in (("theta_std", th_err), ("i_std", i_err), ("theta_crlb", th_b[~sing]),
+                    ("i_crlb", i_b[~sing])):
+        q = np.quantile(v, (0.1, 0.5, 0.9)) if len(v) else np.full(3, np.nan)
+        out.update({f"{name}_q10": q[0], f"{name}_median": q[1], f"{name}_q90": q[2]})
+    return out
+
+
 def breakdown_edge(rows: list[dict]) -> tuple[float | None, float | None]:
     """(largest separation that broke down, smallest efficient one above it), rad."""
     bad = [r["sep"] for r in rows if r["status"] != "ok"]
@@ -118,14 +161,56 @@ def print_table(rows: list[dict]) -> None:
           "'th/I exact' = RMS errors of the global ML itself")
 
 
-def plot(rows: list[dict], path: Path):
+def _placements_panel(ax, rows: list[dict], spread: list[dict]) -> None:
+    import matplotlib.pyplot as plt
+
+    xs = np.array([r["sep_spacings"] for r in spread])
+    ax.fill_between(xs, [r["singular_q05"] for r in spread], [r["singular_q95"] for r in spread],
+                    color="C4", alpha=0.25, label="random placements, 90 % interval")
+    ax.plot(xs, [r["singular_share"] for r in spread], "o-", color="C4", ms=3,
+            label="random placements")
+    fixed = [0.0 if r["status"] != "singular Fisher" else 1.0 for r in rows]
+    ax.plot([r["sep_spacings"] for r in rows], fixed, "s", color="k", ms=3, mfc="none",
+            label=f"the one placement (centre {CENTRE} rad)")
+    ax.set_xscale("log")
+    ticks = [0.25, 0.5, 1, 2, 4, 7.5]
+    ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+    ax.xaxis.set_minor_formatter(plt.NullFormatter())
+    ax.set_xlabel("separation d / ring sensor spacing (2 pi / N)")
+    ax.set_ylabel("share with a singular Fisher matrix")
+    ax.set_ylim(-0.03, 1.03)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+
+
+def print_spread(spread: list[dict]) -> None:
+    """Median and 10-90 % band over random placements, and the singular share."""
+    print(f"\nover {spread[0]['placements']} random placements x {spread[0]['draws']} draws:")
+    print(f"{'/spacing':>8s} | {'th std q10/med/q90':>28s} | {'th CRLB med':>11s} | "
+          f"{'singular share (90 % int)':>26s}")
+    for r in spread:
+        print(f"{r['sep_spacings']:8.3f} | {r['theta_std_q10']:8.2e} {r['theta_std_median']:9.2e} "
+              f"{r['theta_std_q90']:9.2e} | {r['theta_crlb_median']:11.2e} | "
+              f"{r['singular_share']:5.2f} ({r['singular_q05']:.2f}-{r['singular_q95']:.2f})")
+
+
+def plot(rows: list[dict], spread: list[dict], path: Path):
     import matplotlib.pyplot as plt
 
     x = np.array([r["sep_spacings"] for r in rows])
+    xs = np.array([r["sep_spacings"] for r in spread])
     last_bad, edge = breakdown_edge(rows)
     spacing = 2 * np.pi / N
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
+    _placements_panel(axes[2], rows, spread)
     for ax, par, label in ((axes[0], "i", "amplitude"), (axes[1], "theta", "angle (rad)")):
+        ax.fill_between(xs, [r[f"{par}_std_q10"] for r in spread],
+                        [r[f"{par}_std_q90"] for r in spread], color="0.6", alpha=0.3,
+                        label="ML, random placements 10-90 %")
+        ax.plot(xs, [r[f"{par}_std_median"] for r in spread], "-", color="0.35", lw=1,
+                label="ML, random placements median")
+        ax.plot(xs, [r[f"{par}_crlb_median"] for r in spread], ":", color="C0", lw=1,
+                label="CRLB, regular random placements median")
         crlb = np.array([r[f"{par}_crlb"] for r in rows])
         ax.plot(x, np.where(np.isfinite(crlb), crlb, np.nan), "-", color="C0",
                 label="exact CRLB")
@@ -159,7 +244,8 @@ def plot(rows: list[dict], path: Path):
         note += (f"\nMeasured: breakdown up to {last_bad / spacing:.2f} spacings "
                  f"(N d/pi = {N * last_bad / np.pi:.1f}); ML at the exact CRLB from "
                  f"{edge / spacing:.2f} spacings (N d/pi = {N * edge / np.pi:.1f}) up.")
-    fig.suptitle(f"Two sources I = 1, N = {N}, sigma = {SIGMA:g}", y=0.99)
+    fig.suptitle(f"Two sources I = 1, N = {N}, sigma = {SIGMA:g}: one placement (markers) "
+                 "and random placements (bands)", y=0.99)
     fig.text(0.5, 0.005, note, ha="center", va="bottom", fontsize=8)
     fig.tight_layout(rect=(0, 0.07, 1, 0.97))
     fig.savefig(path, dpi=120)
@@ -171,6 +257,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--full", action="store_true", help="T = 2000 trials per separation")
     p.add_argument("--trials", type=int, default=None)
     p.add_argument("--points", type=int, default=24, help="number of separations")
+    p.add_argument("--placements", type=int, default=None, help="random placements per point")
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--out", type=Path, default=Path("out/fig4_two_sources"))
     a = p.parse_args(argv)
@@ -182,11 +269,20 @@ def main(argv: list[str] | None = None) -> int:
             for s, ss in tqdm(list(zip(seps, seeds)), desc="Fig. 4 separations",
                               unit=" separation", leave=False)]
     print_table(rows)
+    n_place, n_draws = (a.placements or (64 if a.full else 16)), (200 if a.full else 60)
+    pseeds = np.random.SeedSequence([a.seed, 1]).spawn(len(seps))
+    spread = [measure_placements(s, n_place, n_draws, np.random.default_rng(ss))
+              for s, ss in zip(seps, pseeds)]
+    print_spread(spread)
+    with open(a.out / "fig4_two_sources_placements.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(spread[0]))
+        w.writeheader()
+        w.writerows(spread)
     with open(a.out / "fig4_two_sources.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    plot(rows, a.out / "fig4_two_sources.png")
+    plot(rows, spread, a.out / "fig4_two_sources.png")
     print(f"wrote {a.out / 'fig4_two_sources.png'} and {a.out / 'fig4_two_sources.csv'}")
     return 0
 

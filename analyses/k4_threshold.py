@@ -30,8 +30,8 @@ horizons.  Evenly spread (well-separated) scenes are the worst case.  The
 threshold sigma below which the ML is efficient is therefore far lower for K = 4
 than for K <= 3 on the same ring.
 
-Run ``python analyses/k4_threshold.py`` (quick: 12 scenes x 200 draws, ~1 min)
-or ``--full`` (60 scenes x 500 draws, ~11 min, one core).  Outputs in --out:
+Run ``python analyses/k4_threshold.py`` (quick: 12 scenes x 200 draws) or
+``--full`` (60 scenes x 500 draws).  Outputs in --out:
 k4_threshold.png, k4_threshold.csv.
 """
 

@@ -1,0 +1,114 @@
+"""Calibration-map statistics on a case with a known answer; its machinery on a tiny grid."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "analyses"))
+
+from _calmap import METHODS, calmap_trial, u_from_draws  # noqa: E402
+from calibration_map import MODES, cell_state, groups, sbc_p, summarise  # noqa: E402
+
+from olsbayes import run_study  # noqa: E402
+
+
+def _linear_gaussian_u(n_rep: int, sd_scale: float, rng) -> np.ndarray:
+    """PIT of the truth under the exact posterior of y = X b + e, b ~ N(0, I), e ~ N(0, 0.5^2 I)
+    (its sd multiplied by ``sd_scale``), with 199 posterior draws per replicate."""
+    x = np.array([[1.0, 0.2], [0.4, 1.0], [1.0, -1.0]])
+    prec = np.eye(2) + x.T @ x / 0.25
+    cov = np.linalg.inv(prec)
+    root = np.linalg.cholesky(cov) * sd_scale
+    out = np.empty((n_rep, 2))
+    for i in range(n_rep):
+        b = rng.standard_normal(2)
+        y = x @ b + 0.5 * rng.standard_normal(3)
+        mean = cov @ x.T @ y / 0.25
+        draws = mean + rng.standard_normal((199, 2)) @ root.T
+        out[i] = u_from_draws(b, draws, rng)
+    return out
+
+
+def _coverages(u: np.ndarray) -> tuple[float, float]:
+    return float(np.mean(np.abs(u - 0.5) < 0.25)), float(np.mean(np.abs(u - 0.5) < 0.45))
+
+
+def test_exact_gaussian_posterior_is_calibrated():
+    u = _linear_gaussian_u(400, 1.0, np.random.default_rng(7))
+    c50, c90 = _coverages(u)
+    n = u.size
+    assert abs(c50 - 0.5) < 3 * np.sqrt(0.25 / n)
+    assert abs(c90 - 0.9) < 3 * np.sqrt(0.09 / n)
+    assert sbc_p(u) > 0.01
+    # 800 parameter-draws: se of 90 % coverage 0.011, so the band is resolved
+    assert cell_state(sbc_p(u), (c50, c90), n) == "calibrated"
+
+
+def test_overconfident_posterior_fails():
+    u = _linear_gaussian_u(400, 0.5, np.random.default_rng(8))  # intervals half as wide
+    c50, c90 = _coverages(u)
+    # exact coverage of a 90 % interval of half the width: 2 Phi(0.822) - 1 = 0.589
+    assert abs(c90 - 0.589) < 3 * np.sqrt(0.589 * 0.411 / u.size)
+    assert sbc_p(u) < 0.01
+    assert cell_state(sbc_p(u), (c50, c90), u.size) == "fails"
+
+
+def test_weighted_draws_give_the_posterior_cdf():
+    rng = np.random.default_rng(3)
+    draws = np.sort(rng.normal(size=(5000, 1)), axis=0)
+    w = np.full(5000, 1 / 5000)
+    truth = np.array([0.0])
+    assert abs(u_from_draws(truth, draws, rng, weights=w)[0] - 0.5) < 0.03
+
+
+def test_cell_state_rules():
+    assert cell_state(0.5, (0.5, 0.9), 400) == "calibrated"
+    assert cell_state(0.001, (0.5, 0.9), 400) == "fails"
+    assert cell_state(0.5, (0.5, 0.80), 1000) == "fails"  # 0.10 off, se 0.009
+    assert cell_state(0.5, (0.5, 0.85), 20) == "undecided"  # 0.05 off, se 0.067
+    assert cell_state(np.nan, (0.5, 0.9), 2) == "undecided"
+    assert cell_state(0.5, (np.nan, np.nan), 0) == ""
+
+
+def test_groups_of_the_quick_mode():
+    tags = [t for t, _, _ in groups(MODES["quick"])]
+    assert tags == ["ring-k1", "ring-k2", "ring-k4", "ring-k4-antipodal", "sphere-k2"]
+    assert [t for t, _, _ in groups(MODES["quick"], (2,))] == ["ring-k2", "sphere-k2"]
+
+
+def test_tiny_map_runs_and_methods_share_scenes(tmp_path):
+    grid = {"separation": [3.0], "snr": [100.0]}
+    fixed = {"geometry": "ring", "n_sources": 2, "antipodal": -1.0, "max_steps": 200}
+    res = {("ring-k2", m): run_study(calmap_trial, grid, 3, fixed={**fixed, "method": m},
+                                     executor="serial", rng=5, progress=False)
+           for m in ("laplace", "image-gaussian")}
+    a, b = (ds["gap"].values for ds in res.values())
+    np.testing.assert_array_equal(a, b)  # the same scenes for every method
+    rows = summarise(res)
+    assert [r["method"] for r in rows] == ["laplace", "image-gaussian"]
+    assert rows[0]["n"] == 3 and 0 <= rows[0]["cov90"] <= 1 and "ml_eff" in rows[0]
+    assert rows[1]["rhat_max"] == 1.0  # closed form
+    from _calmap_plot import plot_map
+
+    plot_map(rows, tmp_path / "map.png", "test", 3)
+    assert (tmp_path / "map.png").stat().st_size > 0
+
+
+def test_method_list_is_one_record_per_method():
+    assert {"emcee", "laplace", "exact", "image-bounded", "image-gaussian"} <= set(METHODS)
+    assert METHODS["exact"].applies({"geometry": "ring", "n_sources": 2, "snr": 100.0})
+    assert not METHODS["exact"].applies({"geometry": "ring", "n_sources": 4, "snr": 100.0})
+
+
+@pytest.mark.parametrize("bad", [{"n_sources": 5}, {"snr": 0.5}, {"geometry": "plate"},
+                                 {"method": "nope"}])
+def test_bad_cell_refused_before_work(bad):
+    from olsbayes.errors import InputError
+
+    fixed = {"geometry": "ring", "n_sources": 1, "snr": 100.0, "method": "laplace", **bad}
+    with pytest.raises(InputError):
+        run_study(calmap_trial, {}, 1, fixed=fixed, executor="serial", progress=False)
