@@ -19,6 +19,7 @@ Adding a method is one line in :data:`METHODS`.
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from collections.abc import Callable
@@ -134,12 +135,16 @@ def u_from_draws(truth: np.ndarray, draws: np.ndarray, rng: np.random.Generator,
 # Each: method(model, data, truth, settings, rng) -> dict with "u" (P,) and optionally
 # "converged" (bool), "rhat" (float), "z2" (2,), "k_hat" (int).
 
-def emcee_default(model, data, truth, settings, rng, options=None) -> dict:
-    """:func:`olsbayes.sample_posterior` (uniform directions, intensities U(0, I_MAX))."""
+def emcee_default(model, data, truth, settings, rng, multimodal=None) -> dict:
+    """:func:`olsbayes.sample_posterior` (uniform directions, intensities U(0, I_MAX)).
+
+    ``multimodal``: the sampler's choice (None: automatic, the default; False: one
+    ensemble; True: one ensemble per mode, :mod:`olsbayes.posterior.multimodal`).
+    """
     k = model.n_sources_of(truth)
     prior = ob.default_priors(model, k, i_max=I_MAX)
     max_steps = int(settings.get("max_steps", 20000))
-    opts = options or ob.SamplerOptions(max_steps=max_steps)
+    opts = ob.SamplerOptions(max_steps=max_steps, multimodal=multimodal)
     res = ob.sample_posterior(model, data, k, priors=prior, options=opts, rng=rng,
                               progress=False)
     s = res.samples  # (W, D, P)
@@ -210,16 +215,20 @@ def _ring_k12_low_snr(cell: dict) -> bool:
         and cell["snr"] <= 300
 
 
+def _ring_k2_up(cell: dict) -> bool:
+    # where one ensemble and one per mode can differ: two or more sources on a ring
+    return cell.get("geometry", "ring") == "ring" and cell["n_sources"] >= 2
+
+
 #: The posterior methods of the map, one line each.
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("emcee", emcee_default),
+    Method("emcee-single", functools.partial(emcee_default, multimodal=False), _ring_k2_up),
+    Method("emcee-modes", functools.partial(emcee_default, multimodal=True), _ring_k2_up),
     Method("laplace", laplace),
     Method("exact", exact_ring, _ring_k12_low_snr),
     Method("image-bounded", imaging(ob.imaging.Bounded(i_max=I_MAX))),
     Method("image-gaussian", imaging(ob.imaging.Gaussian(mean=1.0, sd=0.5))),
-    # >>> MULTIMODAL SAMPLER: add its line here when it lands, e.g.
-    # Method("multimodal", functools.partial(
-    #     emcee_default, options=ob.SamplerOptions(<new option>))),
 )}
 
 

@@ -6,7 +6,8 @@ sources) and per-source SNR (intensity / sigma, intensities Uniform(0.7, 1.3)),
 plus, for K = 4 rings, the distance of the nearest pair from antipodal as an
 axis of its own (uniform scenes with neighbours >= 2 spacings apart, binned by
 that distance) -- scenes are simulated and given to every posterior method of
-``_calmap.METHODS`` (emcee default, Laplace = ML + inverse-Fisher Gaussian, the
+``_calmap.METHODS`` (emcee default -- the automatic choice --, one ensemble, one ensemble
+per mode, Laplace = ML + inverse-Fisher Gaussian, the
 exact grid posterior where it applies, imaging at the known directions).  Per
 cell and method:
 
