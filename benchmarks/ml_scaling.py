@@ -213,11 +213,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ms-starts", type=int, default=300, help="starts of the long multistart")
     p.add_argument("--many-ks", default="12345678", help="part 3: the numbers of sources")
     p.add_argument("--many-kinds", default="ring,sphere", help="part 3: ring and/or sphere")
+    p.add_argument("--ms-trials", type=int, help="part 3: scenes with the L-BFGS-B multistart")
     p.add_argument("--out", type=Path, default=Path("out/ml_scaling"))
     a = p.parse_args(argv)
     a.sizes = SIZES
     a.trials, a.grid_trials = (60, 300) if a.full else (20, 100)
-    a.many_trials, a.ms_trials = (200, 40) if a.full else (50, 10)
+    a.many_trials, ms_trials = (200, 40) if a.full else (50, 10)
+    a.ms_trials = ms_trials if a.ms_trials is None else a.ms_trials
     a.many_ks = [int(c) for c in a.many_ks]
     a.ref_scatter = {"ring": 3000, "sphere": 1000}
     a.out.mkdir(parents=True, exist_ok=True)

@@ -73,7 +73,7 @@ def test_distinct_best_takes_the_lowest_distinct_values():
 
 def test_slide_defaults_and_bad_values():
     ring = ob.Model(ob.Ring(64), 1e-2)
-    assert [FastOptions().resolve(ring, k).slide for k in (4, 5, 8)] == [0, 8, 8]
+    assert [FastOptions().resolve(ring, k).slide for k in (4, 5, 8)] == [0, 16, 16]
     for field, value in (("slide", -1), ("slide", 65), ("slide", 1.5), ("slide_sweeps", 0)):
         with pytest.raises(InputError, match=field):
             FastOptions(**{field: value})
