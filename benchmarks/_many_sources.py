@@ -8,7 +8,8 @@ from the truth, a compiled long multistart (``ref_scatter`` scattered starts
 refined by LM, ``FastOptions(scatter=..., slide=0)``) on every scene and the
 paper's L-BFGS-B multistart (``ms_starts`` pseudo-random starts) on the first
 ``ms_trials`` scenes.  Shares are printed with their binomial standard error and
-the one-sided 95 % lower confidence bound (Clopper-Pearson).
+the one-sided 95 % lower confidence bound (Clopper-Pearson), at 1e-6 nats of the
+best log-likelihood (and the default fit's also at 1e-3 nats).
 """
 
 from __future__ import annotations
@@ -24,8 +25,11 @@ from olsbayes.ml.lm import refine_batch
 
 __all__ = ["part_many"]
 
-#: Reached: within this many nats of the best log-likelihood found.
+#: Reached: within this many nats of the best log-likelihood found; and a looser
+#: tolerance that counts LM runs stopping a little short of one optimum (on a kink)
+#: as reaching it.
 REACH = 1e-6
+REACH_LOOSE = 1e-3
 BEFORE = FastOptions(slide=0)
 
 
@@ -77,6 +81,7 @@ def _point(kind, model, k, sep, args, scenes) -> dict:
     best = np.max(lls + [ms], axis=0)
     for name, ll in (("after", lls[0]), ("before", lls[1]), ("truth", lls[2]), ("long", lls[3])):
         r[name] = _share(best - ll <= REACH)
+    r["after_loose"] = _share(best - lls[0] <= REACH_LOOSE)
     r["ms"] = _share(best[:m] - ms[:m] <= REACH) if m else (np.nan,) * 3
     return r
 
@@ -89,7 +94,8 @@ def _say_point(say, model, r) -> None:
         return
     p, se, low = r["after"]
     say(f"{head}; share {p:.3f} +- {se:.3f} (95 % lower bound {low:.3f}, {r['n']} scenes): "
-        f"{'met' if p >= 0.99 else 'NOT met'}; before {r['before'][0]:.3f}, LM from truth "
+        f"{'met' if p >= 0.99 else 'NOT met'} (within {REACH_LOOSE:g} nats: "
+        f"{r['after_loose'][0]:.3f}); before {r['before'][0]:.3f}, LM from truth "
         f"{r['truth'][0]:.3f}, long multistart {r['long'][0]:.3f} ({r['long_ms']:.0f} ms), "
         f"L-BFGS-B multistart {r['ms'][0]:.3f}")
 
