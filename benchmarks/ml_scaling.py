@@ -21,9 +21,11 @@ pinned to one thread), fits of one data vector at a time:
    N = 300 and 1000 (ring; the exact ML among the references for K <= 3 at N = 300,
    K <= 2 at N = 1000) and 1000, 3000 (sphere).
 3. **Many sources.**  K = 1..8 on a ring of 64 and on the Fig. 2 sphere (300):
-   the median time per fit, the exponent of cost against K, and the share of fits
-   reaching the best optimum of the fast fit, a long multistart (``--ms-starts``
-   pseudo-random starts + L-BFGS-B) and an LM run from the truth.
+   the median time per fit with and without the sliding search (interleaved), the
+   exponent of cost against K, and the share of fits reaching the best optimum of
+   both fits, an LM run from the truth, a long compiled multistart and the
+   paper's multistart (``--ms-starts`` pseudo-random starts + L-BFGS-B), with
+   standard errors (:mod:`_many_sources`).
 
 Run ``python benchmarks/ml_scaling.py`` (quick: ~15 min) or ``--full``.
 """
@@ -42,11 +44,12 @@ import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _many_sources import part_many  # noqa: E402
 from _numpy_baseline import NumpyGridFitter  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
 from olsbayes.geometry import lonlat_to_unit  # noqa: E402
-from olsbayes.ml import MultistartOptions, fit_ml  # noqa: E402
+from olsbayes.ml import fit_ml  # noqa: E402
 from olsbayes.ml.atoms import cached_default_grid  # noqa: E402
 from olsbayes.ml.lm import refine_batch  # noqa: E402
 
@@ -201,46 +204,6 @@ def part_grid(args, say) -> list[dict]:
     return rows
 
 
-def part_many(args, say) -> list[dict]:
-    say(f"\n3. many sources: median CPU ms per single fit, share reaching the best of fast, "
-        f"multistart ({args.ms_starts} starts, first {args.ms_trials} scenes) and LM from the "
-        "truth (goal: >= 0.99 for K = 5..8)")
-    rows = []
-    cases = (("ring", ob.Model(ob.Ring(64), 1e-2), 20.0),
-             ("sphere", ob.Model(ob.Sphere.grid(15, 20), 1e-2), 30.0))
-    for kind, model, sep in cases:
-        for k in range(1, 9):
-            rng = np.random.default_rng([args.seed, 8, k])
-            truth = scenes(kind, k, args.many_trials, rng, sep)
-            data = model.simulate(truth, rng=rng)
-            fit_ml(model, data[0], k, warn=False)  # set-up of the model and plans
-            cpu, ll = [], np.empty(len(data))
-            for i, s in enumerate(data):
-                c0 = time.process_time()
-                ll[i] = fit_ml(model, s, k, warn=False).log_likelihood
-                cpu.append(time.process_time() - c0)
-            m = args.ms_trials
-            ms = fit_ml(model, data[:m], k, method="multistart", rng=k, warn=False,
-                        options=MultistartOptions(args.ms_starts)).log_likelihood
-            best = _best_ll(model, data, model.canonical(truth), ll)
-            best_ms = np.maximum(best[:m], ms)
-            r = {"kind": kind, "k": k, "ms": 1e3 * float(np.median(cpu)),
-                 "reach": float(np.mean(best - ll <= REACH)),
-                 "reach_vs_ms": float(np.mean(np.maximum(ll[:m], ms) - ll[:m] <= REACH)),
-                 "reach_all": float(np.mean(best_ms - ll[:m] <= REACH)),
-                 "ms_reach": float(np.mean(best_ms - ms <= REACH))}
-            rows.append(r)
-            say(f"  {kind:6s} N={model.n_sensors} K={k}: {r['ms']:8.2f} ms; reach vs LM from "
-                f"truth {r['reach']:.3f} ({len(data)}), vs multistart {r['reach_vs_ms']:.3f}, "
-                f"vs both {r['reach_all']:.3f} ({m}); multistart itself {r['ms_reach']:.3f}")
-        sel = [r for r in rows if r["kind"] == kind]
-        e = exponent([r["k"] for r in sel], [r["ms"] for r in sel])
-        worst = min(r["reach_all"] for r in sel if r["k"] >= 5)
-        say(f"  {kind}: cost ~ K^{e:.2f} over K = 1..8 (polynomial fit); worst share K = 5..8 "
-            f"{worst:.3f}: {verdict(worst >= 0.99)}")
-    return rows
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--full", action="store_true", help="more data vectors per point")
@@ -248,11 +211,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=2025)
     p.add_argument("--block", type=int, default=5, help="fits per block of the interleaving")
     p.add_argument("--ms-starts", type=int, default=300, help="starts of the long multistart")
+    p.add_argument("--many-ks", default="12345678", help="part 3: the numbers of sources")
+    p.add_argument("--many-kinds", default="ring,sphere", help="part 3: ring and/or sphere")
+    p.add_argument("--ms-trials", type=int, help="part 3: scenes with the L-BFGS-B multistart")
     p.add_argument("--out", type=Path, default=Path("out/ml_scaling"))
     a = p.parse_args(argv)
     a.sizes = SIZES
     a.trials, a.grid_trials = (60, 300) if a.full else (20, 100)
-    a.many_trials, a.ms_trials = (200, 40) if a.full else (50, 10)
+    a.many_trials, ms_trials = (200, 40) if a.full else (50, 10)
+    a.ms_trials = ms_trials if a.ms_trials is None else a.ms_trials
+    a.many_ks = [int(c) for c in a.many_ks]
+    a.ref_scatter = {"ring": 3000, "sphere": 1000}
     a.out.mkdir(parents=True, exist_ok=True)
     lines: list[str] = []
 
@@ -272,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     if "2" in a.parts:
         out["grid"] = part_grid(a, say)
     if "3" in a.parts:
-        out["many"] = part_many(a, say)
+        out["many"] = part_many(a, say, scenes, exponent)
     (a.out / "ml_scaling.txt").write_text("\n".join(lines) + "\n")
     (a.out / "ml_scaling.json").write_text(json.dumps(out, indent=1))
     return 0

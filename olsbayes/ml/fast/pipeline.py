@@ -19,7 +19,10 @@ knobs and their per-K defaults are :class:`~olsbayes.ml.fast.options.FastOptions
    around that optimum (``n_restarts`` sign patterns of ``restart_scale`` grid
    steps), all refined in one more batched LM run.
    Then (``scatter``, K >= 5) :func:`~olsbayes.ml.fast.scatter.scattered` -- fixed
-   configurations spread over the whole source space, refined in one more LM run.
+   configurations spread over the whole source space, refined in one more LM run --
+   and (``slide``, K >= 5) :func:`~olsbayes.ml.fast.slide.slide` -- sweeps of
+   moves of one or two sources to the atoms best correlated with the residual,
+   from the best distinct optima found so far.
 4. :func:`~olsbayes.ml.fast.refine.kink_hops` -- each source moved just past its
    nearest sub-sensor horizon, either way, into the neighbouring smooth cell of
    the likelihood (``kink_hops``: planar arrays with a kinked law, K >= 2).
@@ -54,6 +57,7 @@ from .options import FastOptions
 from .refine import kink_hops, kink_polish, refine_starts, restart
 from .scatter import scattered
 from .search import grid_search
+from .slide import slide
 
 __all__ = ["fit_fast"]
 
@@ -67,14 +71,20 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
     optima the search candidates reached (for :mod:`olsbayes.ml.rivals`).
     """
     k = n_sources
-    idx, inten, _ = grid_search(atoms(model, grid), data, k, options)
+    g = atoms(model, grid)
+    idx, inten, _ = grid_search(g, data, k, options)
     starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
     out = refine_starts(model, data, starts, options, keep=True)
     found = out.alternatives
     if options.n_restarts:
         out = restart(model, data, out, options.restart_scale * grid_step(model, grid), options)
+    pool = found
     if options.scatter:
-        out = scattered(model, data, out, grid, options)
+        out = scattered(model, data, out, grid, options, keep=bool(options.slide))
+        if options.slide:
+            pool = tuple(np.concatenate([a, b], axis=1) for a, b in zip(found, out.alternatives))
+    if options.slide:
+        out = slide(model, data, out, pool, g, grid, options)
     if options.kink_hops:
         out = kink_hops(model, data, out, options)
     out = dataclasses.replace(kink_polish(model, data, out, options), alternatives=found)

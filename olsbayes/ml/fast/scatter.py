@@ -15,6 +15,8 @@ the fit stays deterministic and a batch equals a loop of single fits.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ...model import Model
@@ -57,10 +59,16 @@ def _starts(model: Model, data: np.ndarray, loc: np.ndarray) -> np.ndarray:
 
 
 def scattered(model: Model, data: np.ndarray, out: FitOutcome, grid: np.ndarray,
-              opts: FastOptions) -> FitOutcome:
-    """``opts.scatter`` scattered starts per data vector in one LM run; the better fits win."""
+              opts: FastOptions, keep: bool = False) -> FitOutcome:
+    """``opts.scatter`` scattered starts per data vector in one LM run; the better fits win.
+
+    ``keep``: the optima of the runs, (T, n, P) with their chi^2 (T, n) (inf where a
+    run did not converge), go to ``alternatives`` of the result.
+    """
     k = out.x.shape[1] // (model.n_loc + 1)
     loc = scatter_locations(model, k, opts.scatter, grid)
     starts = _starts(model, data, loc)
     rows = np.arange(data.shape[0])
-    return _merge(out, rows, refine_starts(model, data, starts, opts, _known(out)))
+    new = refine_starts(model, data, starts, opts, _known(out), keep=keep)
+    merged = _merge(out, rows, new)
+    return dataclasses.replace(merged, alternatives=new.alternatives) if keep else merged
