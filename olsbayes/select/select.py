@@ -117,15 +117,7 @@ def _check(model: object, data: object, k_max: object, method: object, options: 
     if data.ndim != 1:
         raise InputError(f"data must be one snapshot of shape ({model.n_sensors},); "
                          f"got shape {data.shape}")
-    high = min(K_MAX_LIMIT, (model.n_sensors - 1) // (model.n_loc + 1))
-    k_max = integer("k_max", k_max, low=0, high=high)
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}; got {method!r}")
-    if options is None:
-        options = SelectOptions()
-    elif not isinstance(options, SelectOptions):
-        raise InputError(f"options must be an olsbayes.select.SelectOptions or None; "
-                         f"got {type(options).__name__}")
+    k_max, options = _check_settings(model, k_max, method, options)
     n_live = options.nested.n_live
     p_max = k_max * (model.n_loc + 1)
     if method in ("auto", "nested") and k_max and n_live is not None and n_live <= p_max:
@@ -250,12 +242,9 @@ def select_k(
                   time.perf_counter() - t0)
 
 
-def _general(model: Model, data: object, k_max: object, priors: object, k_prior: object,
-             i_max: object, method: object, options: object, rng: object, frames: object
-             ) -> SelectionResult:
-    """select_k for other noise models, nuisance terms or frames (arguments checked first)."""
-    from .general import select_general
-
+def _check_settings(model: Model, k_max: object, method: object, options: object
+                    ) -> tuple[int, SelectOptions]:
+    """K_max within what the readings can hold, the method's name, the options record."""
     high = min(K_MAX_LIMIT, (model.n_sensors - 1) // (model.n_loc + 1))
     k_max = integer("k_max", k_max, low=0, high=high)
     if method not in METHODS:
@@ -265,6 +254,16 @@ def _general(model: Model, data: object, k_max: object, priors: object, k_prior:
     elif not isinstance(options, SelectOptions):
         raise InputError(f"options must be an olsbayes.select.SelectOptions or None; "
                          f"got {type(options).__name__}")
+    return k_max, options
+
+
+def _general(model: Model, data: object, k_max: object, priors: object, k_prior: object,
+             i_max: object, method: object, options: object, rng: object, frames: object
+             ) -> SelectionResult:
+    """select_k for other noise models, nuisance terms or frames (arguments checked first)."""
+    from .general import select_general
+
+    k_max, options = _check_settings(model, k_max, method, options)
     return select_general(model, data, k_max, priors=priors,
                           log_pk=_count_prior(k_prior, k_max), i_max=i_max, method=method,
                           options=options, rng=rng, frames=frames)
