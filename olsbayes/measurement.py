@@ -31,7 +31,7 @@ from ._validation import as_rng, check_reading_range, finite_array, integer, rea
 from .errors import InputError
 from .noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, NoiseModel, Poisson
 from .nuisance import Nuisance
-from .priors import LogUniform, Prior
+from .priors.univariate import LogUniform, Prior
 
 if TYPE_CHECKING:  # pragma: no cover
     from .model import Model

@@ -24,7 +24,7 @@ import numpy as np
 
 from ._validation import finite_array, nonnegative_float
 from .errors import InputError
-from .priors import Prior
+from .priors.univariate import Prior
 
 __all__ = ["Nuisance", "prior_precision"]
 

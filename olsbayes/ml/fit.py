@@ -1,120 +1,18 @@
-"""Public entry point :func:`fit_ml`: validate, scale, dispatch, assemble the result."""
+"""Public entry point :func:`fit_ml`: the plain Gaussian fit or the fit of any other measurement."""
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Callable
-from dataclasses import dataclass
-
 import numpy as np
 
-from .._budget import check_memory
-from .._validation import as_rng
-from ..bounds import SINGULAR_RTOL, bound_covariance
-from ..errors import AntipodalWarning, ConvergenceWarning, InputError, MultimodalWarning
 from ..measurement import is_plain
 from ..model import Model
-from .atoms import cached_default_grid, check_atom_memory, check_grid, default_grid_size
-from .exact import check_exact, enumerate_optimum
-from .fast import FastOptions, fit_fast
-from .honesty import warn_honesty
-from .inputs import check_fit_inputs
-from .mirror import mirror_gap
-from .multistart import MultistartOptions, fit_multistart
-from .outcome import FitOutcome
+from .fast import FastOptions
+from .general import fit_general
+from .multistart import MultistartOptions
+from .plain import METHODS, fit_plain
 from .result import MLResult
-from .rivals import DISTINCT_STD, RIVAL_WARN, rival_gap
-from .scaling import reading_scales, rescale, scaled_model
 
 __all__ = ["fit_ml", "METHODS"]
-
-
-@dataclass(frozen=True)
-class _Method:
-    """One estimator: the type of its options and its runner.
-
-    ``options`` is None when it takes none; the runner is
-    ``run(model, data (T, N), K, grid, options, rng, scales (T,)) -> FitOutcome``.
-    """
-
-    options: type | None
-    run: Callable[..., FitOutcome]
-
-
-def _run_fast(model, s, k, grid, options, gen, scale) -> FitOutcome:
-    return fit_fast(model, s, k, grid, options)
-
-
-def _run_multistart(model, s, k, grid, options, gen, scale) -> FitOutcome:
-    """Multistart fit of data divided by ``scale`` (T,), sigma scaled alike per data vector.
-
-    The objective is in units of sigma; the data vectors run in order (one rng stream).
-    """
-    if np.all(scale == 1.0):
-        return fit_multistart(model, s, k, grid, options, rng=gen)
-    parts = [fit_multistart(scaled_model(model, float(c)), s[i : i + 1], k, grid, options,
-                            rng=gen)
-             for i, c in enumerate(scale)]
-    return FitOutcome(*(np.concatenate([getattr(o, f) for o in parts])
-                        for f in ("x", "chi2", "converged", "n_evaluations")),
-                      alternatives=tuple(np.concatenate([o.alternatives[j] for o in parts])
-                                         for j in (0, 1)))
-
-
-def _run_exact(model, s, k, grid, options, gen, scale) -> FitOutcome:
-    """Exact enumeration of data divided by ``scale`` (T,), converged by construction.
-
-    Evaluations = configurations.  Data vectors sharing a scale run in one batch with
-    sigma scaled alike: the enumeration ranks its candidates by log-likelihood, whose
-    chi^2 term would vanish in rounding against -N log sigma otherwise.
-    """
-    t, p = s.shape[0], model.n_params(k)
-    x, nconf = np.empty((t, p)), np.empty(t, dtype=np.int64)
-    for c in np.unique(scale):
-        rows = scale == c
-        ex = enumerate_optimum(scaled_model(model, float(c)), s[rows], k)
-        x[rows], nconf[rows] = ex.params, ex.n_configurations
-    chi2 = np.sum((s - model.response(x)) ** 2, axis=-1)
-    return FitOutcome(x, chi2, np.ones(t, dtype=bool), nconf, np.zeros(t, dtype=bool))
-
-
-_METHODS = {
-    "fast": _Method(FastOptions, _run_fast),
-    "multistart": _Method(MultistartOptions, _run_multistart),
-    "exact": _Method(None, _run_exact),
-}
-
-#: The default options of each method (validated once; the records are immutable).
-_DEFAULT_OPTIONS = {FastOptions: FastOptions(), MultistartOptions: MultistartOptions()}
-
-#: Accepted values of ``method``.
-METHODS = tuple(_METHODS)
-
-#: Data vectors fitted together: the working memory of a fit grows with this, not
-#: with the number of rows (a batch equals a loop of single fits).
-BLOCK_ROWS = 2048
-
-
-def _result_bytes(p: int) -> int:
-    """Bytes of an MLResult per data vector of P parameters (cov, params, scalars, gap)."""
-    return 8 * (p * p + p + 6)
-
-
-def _check_options(model: Model, k: int, method: object, options: object) -> object:
-    """The method's options, validated and resolved for the model and K."""
-    if method not in _METHODS:
-        raise InputError(f"method must be one of {METHODS}; got {method!r}")
-    kind = _METHODS[method].options
-    if kind is None:
-        if options is not None:
-            raise InputError(f"method={method!r} takes no options; got {options!r}")
-        check_exact(model, k)
-        return None
-    options = _DEFAULT_OPTIONS[kind] if options is None else options
-    if not isinstance(options, kind):
-        raise InputError(f"options for method={method!r} must be a {kind.__name__}; got "
-                         f"{type(options).__name__}")
-    return options.resolve(model, k) if isinstance(options, FastOptions) else options
 
 
 def fit_ml(
@@ -187,108 +85,7 @@ def fit_ml(
         range) or grid; more rows than the memory budget (:mod:`olsbayes._budget`).
     """
     if frames is not False or (isinstance(model, Model) and not is_plain(model)):
-        from .general import fit_general
         return fit_general(model, data, n_sources, method, options=options, grid=grid,
                            rng=rng, warn=warn, frames=frames)
-    arr, k = check_fit_inputs(model, data, n_sources)
-    opts = _check_options(model, k, method, options)
-    # deterministic methods: validate an rng given, but draw no OS entropy for None
-    gen = as_rng(rng) if method == "multistart" or rng is not None else None
-    batch = arr.ndim == 2
-    s = arr if batch else arr[None, :]
-    p = model.n_params(k)
-    check_memory(f"fit_ml of {s.shape[0]} data vector(s) x {p} parameters",
-                 s.shape[0] * _result_bytes(p))
-    if grid is not None:
-        grid = check_grid(model, grid)
-    if method == "fast":
-        m = default_grid_size(model) if grid is None else grid.shape[0]
-        check_atom_memory(model, m, min(s.shape[0], BLOCK_ROWS))
-    g = cached_default_grid(model) if grid is None else grid
-    # rows in blocks, in order (one rng stream): the working arrays of a block are
-    # bounded whatever the number of rows
-    parts = [_fit_block(model, s[i : i + BLOCK_ROWS], k, method, g, opts, gen)
-             for i in range(0, s.shape[0], BLOCK_ROWS)]
-    x, ll, cov, gap, conv, nev = (np.concatenate([q[j] for q in parts]) for j in range(6))
-    if warn:
-        _warn(method, gap, conv)
-        warn_honesty(model, x, ll, cov, method)
-        _warn_mirror(model, s, x, ll, cov, method)
-    sel = (lambda a: a) if batch else (lambda a: a[0])
-    return MLResult(params=sel(x), log_likelihood=sel(ll), converged=sel(conv),
-                    n_evaluations=sel(nev), cov=sel(cov), rival_gap=sel(gap),
-                    method=method, n_sources=k, model=model)
-
-
-def _fit_block(model: Model, s: np.ndarray, k: int, method: str, g: np.ndarray, opts: object,
-               gen: np.random.Generator | None) -> tuple[np.ndarray, ...]:
-    """Fit the rows ``s`` (T, N): (x, log L, cov, rival gap, converged, evaluations)."""
-    scale = reading_scales(s)  # readings far from order 1: fitted in scaled units
-    scaled = bool(np.any(scale != 1.0))
-    out = _METHODS[method].run(model, s / scale[:, None] if scaled else s, k, g, opts, gen,
-                               scale)
-    if scaled:
-        out = rescale(model, out, scale)
-    x = model.canonical(out.x)
-    ll, cov = _statistics(model, x, s)
-    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
-    gap = rival_gap(model, x, out.chi2, out.alternatives, std)
-    return x, ll, cov, gap, out.converged, out.n_evaluations
-
-
-def _statistics(model: Model, x: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Log-likelihood (T,) and inverse Fisher matrices (T, P, P) at the estimates x (T, P).
-
-    Of data s (T, N); the inverses by the rule of :func:`olsbayes.bounds.bound_covariance`.
-    """
-    from ._numba import fit, lm  # numba is imported on first use, not with the package
-
-    if not lm.supports(model):
-        return model.log_likelihood(x, s), bound_covariance(model.fisher(x))[0]
-    chi2, fisher = fit.chi2_fisher(model, x, s)  # compiled: chi^2 and Fisher in one pass
-    n = model.n_sensors
-    ll = -0.5 * chi2 / model.sigma**2 - n * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
-    if np.isfinite(fisher).all():
-        return ll, fit.covariances(fisher, SINGULAR_RTOL)
-    return ll, bound_covariance(fisher)[0]
-
-
-def _warn(method: str, gap: np.ndarray, converged: np.ndarray) -> None:
-    if np.any(gap < RIVAL_WARN):
-        bad = int(np.sum(gap < RIVAL_WARN))
-        warnings.warn(
-            f"{bad} of {gap.size} ML fit(s) ({method}) reached a distinct local optimum "
-            f"(sources > {DISTINCT_STD:g} Fisher std away) within {RIVAL_WARN:g} of the "
-            "estimate's log-likelihood: the likelihood is multimodal there and the Fisher "
-            "covariance understates the uncertainty; see MLResult.rival_gap, or sample the "
-            "posterior (olsbayes.sample_posterior)",
-            MultimodalWarning,
-            stacklevel=3,
-        )
-    if not np.all(converged):
-        bad = int(np.sum(~converged))
-        warnings.warn(
-            f"{bad} of {converged.size} ML fit(s) ({method}) did not meet the "
-            "convergence criterion of the local optimiser; see MLResult.converged",
-            ConvergenceWarning,
-            stacklevel=3,
-        )
-
-
-def _warn_mirror(model: Model, s: np.ndarray, x: np.ndarray, ll: np.ndarray, cov: np.ndarray,
-                 method: str) -> None:
-    """AntipodalWarning when a mirrored near-antipodal optimum fits within RIVAL_WARN."""
-    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
-    gap = mirror_gap(model, s, x, ll, std)
-    if np.any(gap < RIVAL_WARN):
-        bad = int(np.sum(gap < RIVAL_WARN))
-        warnings.warn(
-            f"{bad} of {gap.size} ML fit(s) ({method}) have a pair of sources near "
-            f"antipodal whose mirrored configuration (each source at the antipode of the "
-            f"other) is a distinct optimum within {RIVAL_WARN:g} of the log-likelihood: the "
-            "readings barely tell the two apart and the Fisher covariance describes one of "
-            "them; see olsbayes.antipodal, or sample the posterior "
-            "(olsbayes.sample_posterior samples every mode)",
-            AntipodalWarning,
-            stacklevel=3,
-        )
+    return fit_plain(model, data, n_sources, method, options=options, grid=grid, rng=rng,
+                     warn=warn)

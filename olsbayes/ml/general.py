@@ -33,6 +33,7 @@ from ..measurement import surrogate
 from ..model import Model
 from ..noise import GaussianKnown, GaussianUnknown
 from .irls import profile_sigma, refine_general
+from .plain import fit_plain, warn_rivals
 from .result import MLResult
 
 __all__ = ["fit_general", "check_general_inputs"]
@@ -137,11 +138,9 @@ def fit_general(model: Model, data: object, n_sources: object, method: str = "fa
     The arguments are those of :func:`olsbayes.ml.fit_ml`.  The result's
     ``extra`` holds the inferred extras (``extra_names``) with their sd.
     """
-    from .fit import fit_ml
-
     s, k, batch = check_general_inputs(model, data, n_sources, frames)
     gauss, y, eta0, exact = surrogate(model, s, bool(frames))
-    start = fit_ml(gauss, y, k, method, options=options, grid=grid, rng=rng, warn=False)
+    start = fit_plain(gauss, y, k, method, options=options, grid=grid, rng=rng, warn=False)
     x0 = np.asarray(start.params, float)
     if exact:
         x = x0
@@ -161,8 +160,7 @@ def fit_general(model: Model, data: object, n_sources: object, method: str = "fa
     if exact and isinstance(model.noise, GaussianKnown):
         cov = np.asarray(start.cov).reshape(cov.shape)  # the same matrix, as the surrogate's
     if warn:
-        from .fit import _warn
-        _warn(method, np.where(np.isnan(gap), np.inf, gap), conv)
+        warn_rivals(method, np.where(np.isnan(gap), np.inf, gap), conv)
     sel = (lambda a: a) if batch else (lambda a: a[0])
     return MLResult(params=sel(x), log_likelihood=sel(ll), converged=sel(conv),
                     n_evaluations=sel(nev), cov=sel(cov), rival_gap=sel(gap), method=method,

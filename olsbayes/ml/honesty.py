@@ -69,7 +69,7 @@ def _warn_std(model: Model, x: np.ndarray, cov: np.ndarray, method: str) -> None
            "array resolves trade intensity, or K (d + 1) parameters leave no reading over")
         + "; MLResult.std holds inf/NaN there and the other errors are conditional on them",
         ResolutionWarning,
-        stacklevel=4,
+        stacklevel=5,
     )
 
 
@@ -89,7 +89,7 @@ def _warn_fit(model: Model, ll: np.ndarray, p: int, method: str) -> None:
         + (f", below {GOF_ALPHA:g}/{ll.size} for the batch" if ll.size > 1 else "")
         + f"): {side}; the standard errors assume K sources and this sigma",
         ConvergenceWarning,
-        stacklevel=4,
+        stacklevel=5,
     )
 
 

@@ -15,6 +15,7 @@ from ..ml import MLResult
 from ._assemble import MAX_STORED_DRAWS, _kept_steps, assemble
 from ._logpost import LogPosterior, cut_shift
 from ._run import make_sampler, run_ensemble
+from ._start import start_coordinates
 from .modes import ModeReport, find_modes
 from .multimodal import (
     PooledChain,
@@ -66,8 +67,6 @@ def mode_plan(model, data: np.ndarray, prior, start: object, options
 def _run_modes(logpost: LogPosterior, walkers: list[np.ndarray], options, gen,
                progress: bool) -> tuple[list, bool]:
     """Each mode's ensemble, run to the options' criteria: (samplers, all converged)."""
-    from .sampler import start_coordinates
-
     samplers, converged = [], True
     for w in walkers:
         sampler = make_sampler(logpost, w.shape[0], options, gen)

@@ -10,8 +10,10 @@ from ..errors import InputError
 from ..ml import MLResult, fit_ml
 from ..priors import ScenePrior
 from . import _general
+from ._logpost import LogPosterior
 
-__all__ = ["ball_covariance", "initial_ensemble", "ml_start", "check_start", "initial_walkers"]
+__all__ = ["ball_covariance", "initial_ensemble", "ml_start", "check_start", "initial_walkers",
+           "start_coordinates"]
 
 
 def ball_covariance(model, prior: ScenePrior, centre: np.ndarray,
@@ -174,3 +176,22 @@ def initial_walkers(model, data: np.ndarray, prior: ScenePrior, start: object,
             f"(lower {prior.lower}, upper {prior.upper})")
     cov = ball_covariance(model, prior, centre, data.shape[-2] if frames else None, general)
     return initial_ensemble(centre, cov, n_walkers, prior.contains, gen_ball), centre
+
+
+def start_coordinates(logpost: LogPosterior, walkers: np.ndarray) -> np.ndarray:
+    """The walkers (W, P) in the sampler's coordinates.
+
+    Refused if some have zero posterior density or they are linearly dependent (emcee
+    could not move them).
+    """
+    from emcee.ensemble import walkers_independent
+
+    z0 = logpost.to_sampler(walkers)
+    if not np.all(np.isfinite(logpost(z0))):
+        raise InputError("start: some walkers have zero posterior density (outside the prior?)")
+    if not walkers_independent(z0):
+        raise InputError(
+            "start: the walkers are not linearly independent (e.g. repeated rows or a "
+            "parameter with one value); spread them out or give a single start point"
+        )
+    return z0

@@ -33,7 +33,7 @@ from ._general import check_prior_extras
 from ._logpost import LogPosterior, cut_shift
 from ._modal import check_multimodal_start, mode_plan, sample_modes
 from ._run import make_sampler, run_ensemble
-from ._start import check_start, initial_walkers
+from ._start import check_start, initial_walkers, start_coordinates
 from .audit import narrower_than_crlb
 from .modes import find_modes
 from .multimodal import model_point
@@ -86,25 +86,6 @@ def _check_memory(n_walkers: int, n_params: int, n_sensors: int, steps: int) -> 
     nbytes = 8.0 * n_walkers * (steps * (n_params + 1) + kept * (3 * n_params + n_sensors))
     check_memory(f"n_walkers={n_walkers} x {steps} steps x {n_params} parameters "
                  f"({n_sensors} readings)", nbytes)
-
-
-def start_coordinates(logpost: LogPosterior, walkers: np.ndarray) -> np.ndarray:
-    """The walkers (W, P) in the sampler's coordinates.
-
-    Refused if some have zero posterior density or they are linearly dependent (emcee
-    could not move them).
-    """
-    from emcee.ensemble import walkers_independent
-
-    z0 = logpost.to_sampler(walkers)
-    if not np.all(np.isfinite(logpost(z0))):
-        raise InputError("start: some walkers have zero posterior density (outside the prior?)")
-    if not walkers_independent(z0):
-        raise InputError(
-            "start: the walkers are not linearly independent (e.g. repeated rows or a "
-            "parameter with one value); spread them out or give a single start point"
-        )
-    return z0
 
 
 def sample(

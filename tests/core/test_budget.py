@@ -131,7 +131,7 @@ def test_degenerate_readings_are_fitted_in_bounded_memory(readings):
 
 def test_fit_blocks_equal_one_batch():
     """Rows are fitted in blocks of BLOCK_ROWS: the rows of a block fit equal single fits."""
-    from olsbayes.ml.fit import BLOCK_ROWS
+    from olsbayes.ml.plain import BLOCK_ROWS
 
     data = MODEL.simulate(ob.Scene(directions=[0.37, -2.0], intensities=[1.0, 0.2]), rng=3,
                           size=BLOCK_ROWS + 3)
