@@ -391,7 +391,7 @@ class Model(Frozen):
         return blocks.reshape(x.shape)
 
     def __repr__(self) -> str:
-        noise = "" if self.noise.is_default else f", noise={self.noise!r}"
+        # sigma is the model's own only under the default noise; else the noise says it
+        head = f"sigma={self.sigma!r}" if self.noise.is_default else f"noise={self.noise!r}"
         extra = "" if self.nuisance.is_trivial else f", nuisance={self.nuisance!r}"
-        return (f"Model({self.array!r}, sigma={self.sigma!r}, sensitivity={self.sensitivity!r}"
-                f"{noise}{extra})")
+        return f"Model({self.array!r}, {head}, sensitivity={self.sensitivity!r}{extra})"

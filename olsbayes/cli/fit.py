@@ -343,9 +343,9 @@ def run(args: argparse.Namespace) -> int:
     elif result.is_batch:
         blocks = [batch_text(model, result, truth, std, unit, chi)]
     else:
-        blocks = [f"log-likelihood {float(result.log_likelihood):.6g}, chi^2/dof "
-                  f"{float(chi[0]):.4g} (dof {payload['dof']})\n"
-                  + fit_text(model, result, truth, unit=unit)]
+        fit_line = (f"log-likelihood {float(result.log_likelihood):.6g}, "
+                    f"{_chi2_words(payload, model.n_sensors)}\n")
+        blocks = [fit_line + fit_text(model, result, truth, unit=unit)]
         if general and extra_text(result):
             blocks.append(extra_text(result))
     head = (f"{model!r}\nML fit ({result.method}) of K = {k} source(s); sd = Fisher "
@@ -364,3 +364,12 @@ def run(args: argparse.Namespace) -> int:
         blocks.append(text)
     emit(args, payload, "\n".join([head, *blocks]))
     return 0
+
+
+def _chi2_words(payload: dict[str, Any], n: int) -> str:
+    """chi^2/dof with its dof; with no degrees of freedom left, chi^2 and why there is no ratio."""
+    dof = payload["dof"]
+    if dof > 0:
+        return f"chi^2/dof {float(np.atleast_1d(payload['chi2_dof'])[0]):.4g} (dof {dof})"
+    return (f"chi^2 {float(np.atleast_1d(payload['chi2'])[0]):.4g} (no chi^2/dof: "
+            f"{n - dof} free parameters for {n} readings per frame, held by their priors)")

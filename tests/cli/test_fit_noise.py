@@ -133,3 +133,23 @@ def test_bad_measurement_input_is_one_line_exit_2(tmp_path, capsys):
 def test_bad_measurement_sections(text, match):
     with pytest.raises(ob.ConfigError, match=match):
         parse_config(text)
+
+
+def test_fit_with_more_free_parameters_than_readings_says_why_there_is_no_chi2_dof(
+        tmp_path, capsys):
+    """Free gains of every sub-sensor leave no degrees of freedom: chi^2 is printed with the
+    reason, not a chi^2/dof of nan."""
+    text = (RING + "sigma = 0.1\n[calibration]\ngain_sd = 0.1\n" + SCENE
+            + "[data]\nsimulate = true\nseed = 5\n")
+    assert main(["fit", str(_write(tmp_path, text)), "--seed", "1"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("log-likelihood"))
+    assert "nan" not in line and "chi^2/dof" not in line.split("(")[0]
+    assert "no chi^2/dof: 26 free parameters for 24 readings per frame" in out
+
+
+def test_model_repr_names_the_noise_not_a_nominal_sigma():
+    m = ob.Model(ob.Ring(12), noise=Poisson(exposure=10.0))
+    assert repr(m) == ("Model(Ring(n=12, offset=0.0), noise=Poisson(exposure=10.0, dark=0.0), "
+                       "sensitivity=Cosine())")
+    assert "sigma=0.01" in repr(ob.Model(ob.Ring(12), 0.01))
