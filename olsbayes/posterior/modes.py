@@ -73,9 +73,9 @@ class ModeOptions:
         at the ML point is near-singular (``on_singular``).  Off by default:
         near the resolution limit such scenes have flat valleys rather than
         separated modes, and the search returns points along a valley that the
-        per-mode ensembles cannot keep apart (not calibrated there, and about
-        ten times the cost of one ensemble).  Near-antipodal pairs and the CRLB
-        alarm always trigger the search.
+        per-mode ensembles cannot keep apart (not calibrated there, and one
+        ensemble per point).  Near-antipodal pairs and the CRLB alarm always
+        trigger the search.
     """
 
     antipodal_spacings: float = ANTIPODAL_SPACINGS
