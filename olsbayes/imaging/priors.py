@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import numbers
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -68,15 +69,18 @@ def _set(obj: object, name: str, value: object) -> None:
 
 
 @dataclass(frozen=True)
-class ImagingPrior:
-    """Base of the imaging priors; ``name`` is the value of ``ImageResult.prior``."""
+class ImagingPrior(ABC):
+    """Base of the imaging priors; ``name`` is the value of ``ImageResult.prior``.
+
+    Every concrete prior gives its ``scale`` (a field or a property).
+    """
 
     name: ClassVar[str] = ""
 
     @property
+    @abstractmethod
     def scale(self) -> float:
         """Intensity scale of the prior (see the module notes)."""
-        raise NotImplementedError
 
 
 @dataclass(frozen=True)
