@@ -21,17 +21,17 @@ from .geometry import lonlat_to_unit
 if TYPE_CHECKING:  # pragma: no cover
     from .model import Model
 
-__all__ = ["response", "jacobian_t", "log_likelihood", "sum_squares"]
+__all__ = ["response", "jacobian_t", "log_likelihood", "sum_squares", "sum_products"]
 
 try:  # numpy's einsum kernel without its Python wrapper (the same kernel, the same bits)
-    from numpy._core.multiarray import c_einsum as _c_einsum
+    from numpy._core.multiarray import c_einsum as sum_products
 except ImportError:  # pragma: no cover - older or newer numpy layouts
-    _c_einsum = np.einsum
+    sum_products = np.einsum
 
 
 def sum_squares(r: np.ndarray) -> np.ndarray:
     """``sum_n r[..., n]^2``, shape (...,): ``np.einsum("...n,...n->...", r, r)`` exactly."""
-    return _c_einsum("...n,...n->...", r, r)
+    return sum_products("...n,...n->...", r, r)
 
 
 def response(model: Model, x: np.ndarray) -> np.ndarray:
@@ -61,7 +61,7 @@ def response(model: Model, x: np.ndarray) -> np.ndarray:
     g = np.maximum(c, 0.0, out=c)  # the clipped cosine, in place
     if k == 1:
         return np.multiply(g[0], x[d1 - 1], g[0])
-    return _c_einsum("k,kn->n", x[d1 - 1::d1], g)  # the batched kernel's sum, same order
+    return sum_products("k,kn->n", x[d1 - 1::d1], g)  # the batched kernel's sum, same order
 
 
 def jacobian_t(model: Model, x: np.ndarray) -> np.ndarray:

@@ -12,6 +12,8 @@ needs it: parameter by parameter, stopping at the first one above the bound.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.special import ndtri
 
@@ -26,7 +28,11 @@ __all__ = ["rank_rhat", "average_ranks", "RhatCheck"]
 def average_ranks(values: np.ndarray) -> np.ndarray:
     """Ranks 1..n of ``values`` (n,), ties given their average rank (``scipy.stats.rankdata``)."""
     order = np.argsort(values)
-    ordered = values[order]
+    return _ranks(values[order], order)
+
+
+def _ranks(ordered: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Average ranks of the values whose sorted copy ``ordered`` is ``values[order]``."""
     new = np.empty(ordered.size, dtype=bool)
     new[:1] = True
     np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
@@ -37,14 +43,40 @@ def average_ranks(values: np.ndarray) -> np.ndarray:
     return ranks
 
 
-def _split_rhat_of_scores(split: np.ndarray) -> float:
-    """Split R-hat of (2 chains, half) draws after their normal-score transform."""
-    rank = average_ranks(split.ravel())
-    z = ndtri((rank - 0.375) / (rank.size + 0.25)).reshape(split.shape)
+@functools.lru_cache(maxsize=8)
+def _rank_scores(n: int) -> np.ndarray:
+    """The normal scores (n,) of the ranks 1..n, read-only (one table per draw count)."""
+    scores = ndtri((np.arange(1, n + 1, dtype=float) - 0.375) / (n + 0.25))
+    scores.flags.writeable = False
+    return scores
+
+
+def _scores(values: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Normal scores ``ndtri((r - 3/8) / (n + 1/4))`` of the average ranks r of ``values``.
+
+    ``order`` sorts ``values`` (n,).  Without ties the ranks are 1..n in that
+    order, so the scores are a cached table scattered back (the same numbers).
+    """
+    ordered = values[order]
+    if (ordered[1:] != ordered[:-1]).all():
+        z = np.empty(values.size)
+        z[order] = _rank_scores(values.size)
+        return z
+    return ndtri((_ranks(ordered, order) - 0.375) / (values.size + 0.25))
+
+
+def _split_rhat(z: np.ndarray) -> float:
+    """Split R-hat of normal scores z (2 chains, half)."""
     n = z.shape[1]
     between = n * np.var(z.mean(axis=1), ddof=1)
     within = np.mean(np.var(z, axis=1, ddof=1))
     return float(np.sqrt((between / within + n - 1) / n))
+
+
+def _split_rhat_of_scores(split: np.ndarray) -> float:
+    """Split R-hat of (2 chains, half) draws after their normal-score transform."""
+    values = split.ravel()
+    return _split_rhat(_scores(values, np.argsort(values)).reshape(split.shape))
 
 
 def rank_rhat(draws: np.ndarray, bound: float = np.inf) -> float:
@@ -52,17 +84,29 @@ def rank_rhat(draws: np.ndarray, bound: float = np.inf) -> float:
 
     NaN with fewer than 2 chains or 4 draws, or when a draw is NaN (as ArviZ).
     With a finite ``bound``, a bulk R-hat not below it is returned at once (the
-    tail R-hat cannot bring the maximum below the bound).
+    tail R-hat cannot bring the maximum below the bound).  The tail's order is
+    merged from the bulk's: the draws below the median, reversed, and those
+    above it are each sorted by their distance from the median already.
     """
     x = np.asarray(draws, dtype=float)
     if x.ndim != 2 or x.shape[0] < 2 or x.shape[1] < 4 or np.isnan(x).any():
         return float("nan")
     half = x.shape[1] // 2
     split = np.concatenate([x[:, :half], x[:, -half:]])
-    bulk = _split_rhat_of_scores(split)
+    values = split.ravel()
+    order = np.argsort(values)
+    bulk = _split_rhat(_scores(values, order).reshape(split.shape))
     if not bulk < bound:
         return bulk
-    tail = _split_rhat_of_scores(np.abs(split - np.median(split)))
+    median = np.median(split)
+    dist = np.abs(split - median).ravel()
+    if np.isfinite(dist).all():
+        below = int(np.searchsorted(values[order], median))
+        runs = np.concatenate([order[:below][::-1], order[below:]])
+        dist_order = runs[np.argsort(dist[runs], kind="stable")]  # a merge of two runs
+    else:
+        dist_order = np.argsort(dist)
+    tail = _split_rhat(_scores(dist, dist_order).reshape(split.shape))
     return max(bulk, tail)
 
 
