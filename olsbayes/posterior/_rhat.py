@@ -12,8 +12,6 @@ needs it: parameter by parameter, stopping at the first one above the bound.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 from scipy.special import ndtri
 
@@ -43,26 +41,39 @@ def _ranks(ordered: np.ndarray, order: np.ndarray) -> np.ndarray:
     return ranks
 
 
-@functools.lru_cache(maxsize=8)
-def _rank_scores(n: int) -> np.ndarray:
-    """The normal scores (n,) of the ranks 1..n, read-only (one table per draw count)."""
-    scores = ndtri((np.arange(1, n + 1, dtype=float) - 0.375) / (n + 0.25))
-    scores.flags.writeable = False
-    return scores
+def _scores(split: np.ndarray) -> np.ndarray:
+    """Normal scores ``ndtri((r - 3/8) / (n + 1/4))`` of the pooled average ranks r of ``split``.
 
-
-def _scores(values: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """Normal scores ``ndtri((r - 3/8) / (n + 1/4))`` of the average ranks r of ``values``.
-
-    ``order`` sorts ``values`` (n,).  Without ties the ranks are 1..n in that
-    order, so the scores are a cached table scattered back (the same numbers).
+    ``split`` (chains, draws) holds n values.  A walker that rejects a proposal
+    repeats its position, so the chains are runs of equal values: the runs are
+    sorted instead of the draws, each distinct value's average rank is counted
+    from the run lengths (``(first + last) / 2`` of the positions its copies
+    would take in the full sort) and its score is spread back over its runs --
+    the same ranks, hence the same scores, as ranking every draw (which is
+    done when fewer than half the draws repeat their predecessor).
     """
-    ordered = values[order]
-    if (ordered[1:] != ordered[:-1]).all():
-        z = np.empty(values.size)
-        z[order] = _rank_scores(values.size)
-        return z
-    return ndtri((_ranks(ordered, order) - 0.375) / (values.size + 0.25))
+    values = split.ravel()
+    head = np.empty(values.size, dtype=bool)
+    head[:1] = True
+    np.not_equal(values[1:], values[:-1], out=head[1:])
+    head[::split.shape[1]] = True  # every chain starts a run
+    starts = np.flatnonzero(head)
+    if 2 * starts.size > values.size:  # few repeats: rank the draws themselves
+        rank = average_ranks(values)
+        return ndtri((rank - 0.375) / (rank.size + 0.25)).reshape(split.shape)
+    lengths = np.diff(np.append(starts, values.size))
+    order = np.argsort(values[starts])
+    ordered = values[starts][order]
+    new = np.empty(ordered.size, dtype=bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    first = np.flatnonzero(new)  # the sorted runs where a distinct value starts
+    position = np.concatenate([[0], np.cumsum(lengths[order])])
+    low, high = position[first], position[np.append(first[1:], ordered.size)]
+    score = ndtri((0.5 * (low + high + 1) - 0.375) / (values.size + 0.25))
+    run_score = np.empty(ordered.size)
+    run_score[order] = np.repeat(score, np.diff(np.append(first, ordered.size)))
+    return np.repeat(run_score, lengths).reshape(split.shape)
 
 
 def _split_rhat(z: np.ndarray) -> float:
@@ -75,8 +86,7 @@ def _split_rhat(z: np.ndarray) -> float:
 
 def _split_rhat_of_scores(split: np.ndarray) -> float:
     """Split R-hat of (2 chains, half) draws after their normal-score transform."""
-    values = split.ravel()
-    return _split_rhat(_scores(values, np.argsort(values)).reshape(split.shape))
+    return _split_rhat(_scores(split))
 
 
 def rank_rhat(draws: np.ndarray, bound: float = np.inf) -> float:
@@ -84,29 +94,17 @@ def rank_rhat(draws: np.ndarray, bound: float = np.inf) -> float:
 
     NaN with fewer than 2 chains or 4 draws, or when a draw is NaN (as ArviZ).
     With a finite ``bound``, a bulk R-hat not below it is returned at once (the
-    tail R-hat cannot bring the maximum below the bound).  The tail's order is
-    merged from the bulk's: the draws below the median, reversed, and those
-    above it are each sorted by their distance from the median already.
+    tail R-hat cannot bring the maximum below the bound).
     """
     x = np.asarray(draws, dtype=float)
     if x.ndim != 2 or x.shape[0] < 2 or x.shape[1] < 4 or np.isnan(x).any():
         return float("nan")
     half = x.shape[1] // 2
     split = np.concatenate([x[:, :half], x[:, -half:]])
-    values = split.ravel()
-    order = np.argsort(values)
-    bulk = _split_rhat(_scores(values, order).reshape(split.shape))
+    bulk = _split_rhat_of_scores(split)
     if not bulk < bound:
         return bulk
-    median = np.median(split)
-    dist = np.abs(split - median).ravel()
-    if np.isfinite(dist).all():
-        below = int(np.searchsorted(values[order], median))
-        runs = np.concatenate([order[:below][::-1], order[below:]])
-        dist_order = runs[np.argsort(dist[runs], kind="stable")]  # a merge of two runs
-    else:
-        dist_order = np.argsort(dist)
-    tail = _split_rhat(_scores(dist, dist_order).reshape(split.shape))
+    tail = _split_rhat_of_scores(np.abs(split - np.median(split)))
     return max(bulk, tail)
 
 
