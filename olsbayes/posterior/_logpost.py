@@ -132,12 +132,17 @@ class LogPosterior:
             z[..., self.log_scale] = np.log(np.asarray(x, dtype=float)[..., self.log_scale])
         return z
 
-    def pointwise(self, x: np.ndarray) -> np.ndarray:
-        """Per-sub-sensor log density, shape (..., N), at model parameters."""
+    def pointwise(self, x: np.ndarray, mu: np.ndarray | None = None) -> np.ndarray:
+        """Per-sub-sensor log density, shape (..., N), at model parameters.
+
+        ``mu`` (..., N): the model's response at ``x`` when the caller has it.
+        """
         if self.general:
             return _general.pointwise(self.model, self.prior, self.data, x, self.frames)
         sigma = x[..., -1:] if self.prior.noise is not None else self.model.sigma
-        resid = (self.data - self.model.response(x[..., : self.n_model])) / sigma
+        if mu is None:
+            mu = self.model.response(x[..., : self.n_model])
+        resid = (self.data - mu) / sigma
         return -0.5 * resid * resid - np.log(sigma) - 0.5 * _LOG_2PI
 
     def log_likelihood(self, x: np.ndarray) -> np.ndarray:
