@@ -6,6 +6,7 @@ import functools
 
 import numpy as np
 
+from .._one import sum_products
 from .._progress import progress_bar
 from ._checkpoint import ChainCheckpoint
 from ._logpost import LogPosterior
@@ -188,8 +189,8 @@ class AutocorrTime:
         for lag in range(min(n_lag, stop)):
             first = max(start, lag) - lo
             if first < stop - lo:
-                self._lags[lag] += np.einsum("t...,t...->...", y[first - lag:stop - lo - lag],
-                                             y[first:])
+                self._lags[lag] += sum_products("t...,t...->...", y[first - lag:stop - lo - lag],
+                                                y[first:])
 
     def _estimate(self, chain: np.ndarray, n: int) -> tuple[np.ndarray, bool]:
         """(tau (P,), whether every parameter's window lies within the lag bound)."""
