@@ -41,7 +41,7 @@ def response(model: Model, x: np.ndarray) -> np.ndarray:
     the K rows summed in source order (elementwise products and sums: the same
     roundings as the batched kernel's).
     """
-    d1 = model._n_loc + 1
+    d1 = model._d1
     k = x.shape[0] // d1
     if k == 0:
         return np.zeros(model._n_sensors)
@@ -60,7 +60,8 @@ def response(model: Model, x: np.ndarray) -> np.ndarray:
         return out
     g = np.maximum(c, 0.0, out=c)  # the clipped cosine, in place
     if k == 1:
-        return np.multiply(g[0], x[d1 - 1], g[0])
+        row = g[0]
+        return np.multiply(row, x[d1 - 1], row)
     return sum_products("k,kn->n", x[d1 - 1::d1], g)  # the batched kernel's sum, same order
 
 

@@ -102,6 +102,8 @@ class Model(Frozen):
         self._far = self._kind != "position"
         self._clipped = type(self.sensitivity) is Cosine
         self._plain = bool(self.noise.is_default and self.nuisance.is_trivial)
+        self._one_logl = self._plain and self._far  # the one-vector log-likelihood path
+        self._d1 = self._n_loc + 1
         self._memo: dict[Any, Any] = {}
 
     # -- copies and derived constants ---------------------------------------------
@@ -281,7 +283,7 @@ class Model(Frozen):
         """
         x = scene_or_params
         if (type(x) is np.ndarray and x.ndim == 1 and x.dtype is _FLOAT and self._far
-                and not x.shape[0] % (self._n_loc + 1)):
+                and not x.shape[0] % self._d1):
             return _one.response(self, x)  # one valid far-field vector: the short path
         x = self._as_params(x)
         if x.ndim == 1 and self._far:
@@ -352,10 +354,10 @@ class Model(Frozen):
         (:func:`olsbayes.measurement.extra_names`), default their nominal values.
         """
         x = scene_or_params
-        if (self._plain and self._far and extra is None and frames is False
-                and type(x) is np.ndarray and x.dtype is _FLOAT and x.ndim == 1
-                and type(data) is np.ndarray and data.dtype is _FLOAT and data.ndim == 1
-                and data.shape[0] == self._n_sensors and not x.shape[0] % (self._n_loc + 1)):
+        if (self._one_logl and extra is None and frames is False and type(x) is np.ndarray
+                and type(data) is np.ndarray and x.ndim == 1 == data.ndim
+                and x.dtype is _FLOAT and data.dtype is _FLOAT
+                and data.shape[0] == self._n_sensors and not x.shape[0] % self._d1):
             return _one.log_likelihood(self, x, data)  # one vector, default noise: short path
         return measurement.log_likelihood(self, scene_or_params, data, extra=extra,
                                           frames=frames)
