@@ -73,3 +73,31 @@ def test_rank_rhat_on_runs_of_repeated_draws_equals_ranking_every_draw():
         split = np.concatenate([x[:, :half], x[:, -half:]])
         expected = max(direct(split), direct(np.abs(split - np.median(split))))
         assert rank_rhat(x) == expected
+
+
+def test_vector_sampler_gives_stock_emcee_chains():
+    """The sampler's one-conversion log-probabilities leave emcee's chains as they were."""
+    import emcee
+
+    from olsbayes.posterior import SamplerOptions
+    from olsbayes.posterior._run import make_sampler
+
+    model = Model(Ring(30), 0.01)
+    truth = np.array([0.3, 1.0, 2.4, 0.7])
+    data = model.simulate(truth, rng=7)
+    prior = default_priors(model, 2, data=data)
+    x = truth + 1e-3 * np.random.default_rng(8).standard_normal((16, truth.size))
+    lp = LogPosterior(model, data, prior, cut_shift(prior, x))
+    z = lp.to_sampler(x)
+    ours = make_sampler(lp, 16, SamplerOptions(), np.random.default_rng(9))
+    stock = emcee.EnsembleSampler(16, z.shape[1], lp, vectorize=True,
+                                  moves=emcee.moves.DEMove())
+    stock.random_state = np.random.RandomState(
+        int(np.random.default_rng(9).integers(2**32))).get_state()
+    for sampler in (ours, stock):
+        sampler.run_mcmc(z, 200, progress=False)
+    assert type(ours) is not emcee.EnsembleSampler
+    assert np.array_equal(ours.get_chain(), stock.get_chain())
+    assert np.array_equal(ours.get_log_prob(), stock.get_log_prob())
+    with pytest.raises(ValueError, match="infinite"):
+        ours.compute_log_prob(np.full((16, z.shape[1]), np.inf))
