@@ -25,8 +25,11 @@ __all__ = ["response", "jacobian_t", "log_likelihood", "sum_squares", "sum_produ
 
 try:  # numpy's einsum kernel without its Python wrapper (the same kernel, the same bits)
     from numpy._core.multiarray import c_einsum as sum_products
-except ImportError:  # pragma: no cover - older or newer numpy layouts
-    sum_products = np.einsum
+except ImportError:  # pragma: no cover - numpy 1.x layout, or none: the wrapper itself
+    try:
+        from numpy.core.multiarray import c_einsum as sum_products
+    except ImportError:
+        sum_products = np.einsum
 
 
 def sum_squares(r: np.ndarray) -> np.ndarray:
