@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import _one
 from ._validation import as_rng, check_reading_range, finite_array, integer, real_array
 from .errors import InputError
 from .noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, NoiseModel, Poisson
@@ -67,7 +68,7 @@ def resolve(sigma: object, noise: object, nuisance: object, n_sensors: int
 
 def is_plain(model: Model) -> bool:
     """Gaussian noise of known sigma and no nuisance terms: the original path."""
-    return model.noise.is_default and model.nuisance.is_trivial
+    return model._plain  # fixed at construction (noise and nuisance are immutable)
 
 
 # -- extra parameters -------------------------------------------------------------------
@@ -134,13 +135,11 @@ def expected(model: Model, x: np.ndarray, extra: np.ndarray | None = None) -> np
 def _gaussian_log_likelihood(model: Model, x: np.ndarray, data: np.ndarray) -> np.ndarray:
     """The original Gaussian known-sigma log-likelihood (the default path)."""
     if x.ndim == 1 and data.ndim == 1 and model._kind != "position":
-        mu = model._response_one(x)  # a fresh array: the residual can overwrite it
-        resid = np.subtract(data, mu, out=mu)
-    else:
-        mu = model._response_unchecked(x)
-        resid = np.subtract(data, mu, out=mu) if _fits_into(data.shape, mu.shape) else (
-            data - mu)  # in place when it fits: no second (..., N) array
-    chi2 = np.einsum("...n,...n->...", resid, resid) / model.sigma**2
+        return _one.log_likelihood(model, x, data)
+    mu = model._response_unchecked(x)
+    resid = np.subtract(data, mu, out=mu) if _fits_into(data.shape, mu.shape) else (
+        data - mu)  # in place when it fits: no second (..., N) array
+    chi2 = _one.sum_squares(resid) / model.sigma**2
     return -0.5 * chi2 - model._log_norm
 
 

@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from . import measurement
+from . import _one, measurement
 from ._frozen import Frozen
 from ._nearfield import near_gain, near_jacobian_t
 from ._validation import finite_array, real_array
@@ -28,7 +28,7 @@ from .geometry import SensorArray, lonlat_to_unit
 from .noise import NoiseModel
 from .nuisance import Nuisance
 from .scene import Scene
-from .sensitivity import Sensitivity, get_sensitivity
+from .sensitivity import Cosine, Sensitivity, get_sensitivity
 
 __all__ = ["Model"]
 
@@ -97,6 +97,13 @@ class Model(Frozen):
         self._n_sensors = array.n_sensors
         # log of the Gaussian normalisation, N (log sigma + log(2 pi) / 2)
         self._log_norm = self._n_sensors * (np.log(self.sigma) + 0.5 * np.log(2 * np.pi))
+        self._var = self.sigma**2
+        # which short paths apply: far-field sources, the clipped cosine, the default noise
+        self._far = self._kind != "position"
+        self._clipped = type(self.sensitivity) is Cosine
+        self._plain = bool(self.noise.is_default and self.nuisance.is_trivial)
+        self._one_logl = self._plain and self._far  # the one-vector log-likelihood path
+        self._d1 = self._n_loc + 1
         self._memo: dict[Any, Any] = {}
 
     # -- copies and derived constants ---------------------------------------------
@@ -274,33 +281,14 @@ class Model(Frozen):
         terms so that the (block, K, N) intermediates stay in cache.  One far-field
         vector takes a short path with the same arithmetic (equal to the bit).
         """
-        x = self._as_params(scene_or_params)
-        if x.ndim == 1 and self._kind != "position":
-            return self._response_one(x)
+        x = scene_or_params
+        if (type(x) is np.ndarray and x.ndim == 1 and x.dtype is _FLOAT and self._far
+                and not x.shape[0] % self._d1):
+            return _one.response(self, x)  # one valid far-field vector: the short path
+        x = self._as_params(x)
+        if x.ndim == 1 and self._far:
+            return _one.response(self, x)
         return self._response_unchecked(x)
-
-    def _response_one(self, x: np.ndarray) -> np.ndarray:
-        """:meth:`response` of one validated far-field vector x (P,): shape (N,).
-
-        The batched path's operations on a batch of one, on arrays of the same
-        layout, without its bookkeeping: unit vectors (K, D), ``g(u n^T)`` (K, N),
-        then ``I[k] g[k]`` summed in source order -- equal to the bit.
-        """
-        k = x.shape[0] // (self._n_loc + 1)
-        if k == 0:
-            return np.zeros(self._n_sensors)
-        blocks = x.reshape(k, self._n_loc + 1)
-        if self._kind == "angle":  # as _units, inlined: the same calls on the same layout
-            th, u = blocks[:, 0], np.empty((k, 2))
-            np.cos(th, u[:, 0])
-            np.sin(th, u[:, 1])
-        else:
-            u = lonlat_to_unit(blocks[:, 0], blocks[:, 1])
-        terms = np.multiply(self.sensitivity.value(np.dot(u, self._normals_t)), blocks[:, -1:])
-        out = terms[0]
-        for j in range(1, k):  # ufuncs with positional outputs: the cheapest calls
-            np.add(out, terms[j], out)
-        return out
 
     def _response_unchecked(self, x: np.ndarray) -> np.ndarray:
         """:meth:`response` of a float array x (..., P) the caller has validated."""
@@ -322,7 +310,10 @@ class Model(Frozen):
 
     def jacobian(self, scene_or_params: Scene | np.ndarray) -> np.ndarray:
         """d response / d params, shape (..., N, n_params)."""
-        jac_t = self._jacobian_t(self._as_params(scene_or_params))
+        x = self._as_params(scene_or_params)
+        if x.ndim == 1 and self._far:
+            return _one.jacobian_t(self, x).T
+        jac_t = self._jacobian_t(x)
         return jac_t.T if jac_t.ndim == 2 else np.swapaxes(jac_t, -1, -2)
 
     def _jacobian_t(self, x: np.ndarray) -> np.ndarray:
@@ -362,6 +353,12 @@ class Model(Frozen):
         ``extra`` (..., Q): values of the inferred noise and nuisance parameters
         (:func:`olsbayes.measurement.extra_names`), default their nominal values.
         """
+        x = scene_or_params
+        if (self._one_logl and extra is None and frames is False and type(x) is np.ndarray
+                and type(data) is np.ndarray and x.ndim == 1 == data.ndim
+                and x.dtype is _FLOAT and data.dtype is _FLOAT
+                and data.shape[0] == self._n_sensors and not x.shape[0] % self._d1):
+            return _one.log_likelihood(self, x, data)  # one vector, default noise: short path
         return measurement.log_likelihood(self, scene_or_params, data, extra=extra,
                                           frames=frames)
 

@@ -65,15 +65,20 @@ def _point_estimate(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
 
 
 def predictive_draws(model: Model, prior: ScenePrior, x: np.ndarray,
-                     gen: np.random.Generator) -> np.ndarray:
+                     gen: np.random.Generator, mu: np.ndarray | None = None) -> np.ndarray:
     """Replicated readings (..., N): the response of every draw x (..., P) plus noise.
 
     The noise sd is the draw's ``sigma`` when it is inferred, else ``model.sigma``.
+    ``mu`` (..., N): the draws' response when the caller has it already.
     """
     p_model = model.n_params(prior.n_sources)
     flat = x.reshape(-1, x.shape[-1])
-    mu = model.response(flat[:, :p_model]) if p_model else np.zeros((flat.shape[0],
-                                                                      model.n_sensors))
+    if mu is not None:
+        mu = mu.reshape(flat.shape[0], model.n_sensors)
+    elif p_model:
+        mu = model.response(flat[:, :p_model])
+    else:
+        mu = np.zeros((flat.shape[0], model.n_sensors))
     sd = flat[:, -1:] if prior.noise is not None else model.sigma
     rep = mu + sd * gen.standard_normal(mu.shape)
     return rep.reshape(x.shape[:-1] + (model.n_sensors,))
@@ -125,11 +130,14 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     if general:
         observed = _general.statistic(model, data, logpost.frames)
         replicas = _general.predictive(model, prior, x, gen_prior, n_frames)
-    else:
-        observed, replicas = data, predictive_draws(model, prior, x, gen_prior)
+        pointwise = logpost.pointwise(x)
+    else:  # one response of the draws for the pointwise likelihood and the replicas
+        mu = model.response(x[..., :logpost.n_model]) if logpost.n_model else None
+        pointwise = logpost.pointwise(x, mu)
+        observed, replicas = data, predictive_draws(model, prior, x, gen_prior, mu)
     idata = to_inference_data(
         x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),
-        accepted=moved.T, pointwise=logpost.pointwise(x), data=observed, constants=constants,
+        accepted=moved.T, pointwise=pointwise, data=observed, constants=constants,
         attrs=attrs, periodic=prior.periodic, centre=estimate,
         predictive=replicas, prior_draws=prior_draws)
     return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,

@@ -148,6 +148,12 @@ def dominant_permutation(perms: np.ndarray) -> tuple[np.ndarray, float]:
     flat = perms.reshape(-1, perms.shape[-1])
     if flat.shape[0] == 0:
         return np.arange(perms.shape[-1]), 0.0
+    k = flat.shape[1]
+    if k ** k < 2**62:  # each permutation as one integer, in lexicographic order
+        digits = np.asarray(flat, dtype=np.int64) @ (k ** np.arange(k - 1, -1, -1, dtype=np.int64))
+        codes, first, counts = np.unique(digits, return_index=True, return_counts=True)
+        best = int(np.argmax(counts))  # ties: the lexicographically first, as below
+        return flat[first[best]].copy(), float(1.0 - counts[best] / flat.shape[0])
     uniq, counts = np.unique(flat, axis=0, return_counts=True)
     best = int(np.argmax(counts))
     return uniq[best], float(1.0 - counts[best] / flat.shape[0])

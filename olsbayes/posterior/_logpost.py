@@ -20,13 +20,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._one import sum_products, sum_squares
 from ..circular import largest_gap_cut, wrap_angle
+from ..model import BLOCK_TERMS
 from ..priors import LogUniform, ScenePrior
 from . import _general
 
 __all__ = ["LogPosterior", "cut_shift"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
+_FLOAT = np.dtype(float)
 
 
 def cut_shift(prior: ScenePrior, points: np.ndarray | None) -> np.ndarray:
@@ -92,6 +95,13 @@ class LogPosterior:
         sig = float(model.sigma)  # the known-noise constants of log_likelihood
         self._var = sig**2
         self._log_norm = model.n_sensors * (np.log(sig) + 0.5 * _LOG_2PI)
+        # the default problem (Gaussian noise of known sigma, flat priors, linear
+        # coordinates, far-field sources) has a one-pass log posterior: see _flat
+        self._flat = (use_likelihood and not self.general and prior.noise is None
+                      and not self._any_log and model.kind != "position"
+                      and all(m.flat for m in prior.marginals))
+        self._const = (float(prior.log_prob_inside(np.zeros((1, prior.n_params)))[0])
+                       if self._flat else 0.0)
 
     def _x_of(self, z: np.ndarray) -> np.ndarray:
         """Parameters of sampler coordinates (angles not wrapped)."""
@@ -122,12 +132,17 @@ class LogPosterior:
             z[..., self.log_scale] = np.log(np.asarray(x, dtype=float)[..., self.log_scale])
         return z
 
-    def pointwise(self, x: np.ndarray) -> np.ndarray:
-        """Per-sub-sensor log density, shape (..., N), at model parameters."""
+    def pointwise(self, x: np.ndarray, mu: np.ndarray | None = None) -> np.ndarray:
+        """Per-sub-sensor log density, shape (..., N), at model parameters.
+
+        ``mu`` (..., N): the model's response at ``x`` when the caller has it.
+        """
         if self.general:
             return _general.pointwise(self.model, self.prior, self.data, x, self.frames)
         sigma = x[..., -1:] if self.prior.noise is not None else self.model.sigma
-        resid = (self.data - self.model.response(x[..., : self.n_model])) / sigma
+        if mu is None:
+            mu = self.model.response(x[..., : self.n_model])
+        resid = (self.data - mu) / sigma
         return -0.5 * resid * resid - np.log(sigma) - 0.5 * _LOG_2PI
 
     def log_likelihood(self, x: np.ndarray) -> np.ndarray:
@@ -169,6 +184,33 @@ class LogPosterior:
     def __call__(self, z: np.ndarray) -> np.ndarray:
         """Log posterior (up to the evidence), shape (...,) for z (..., P)."""
         self.n_calls += 1
+        if (self._flat and type(z) is np.ndarray and z.ndim == 2 and z.dtype is _FLOAT
+                and z.shape[0] * z.shape[1] * self.model.n_sensors <= BLOCK_TERMS):
+            out = self._flat_call(z)
+            if out is not None:
+                return out
         lp, ll = self.split(z)
         out = lp + ll
+        return np.where(np.isnan(out), -np.inf, out)
+
+    def _flat_call(self, z: np.ndarray) -> np.ndarray | None:
+        """:meth:`__call__` of the default problem for walkers z (W, P) inside the support.
+
+        The same operations as the general path (:meth:`split`, then the
+        model's batched response) on arrays of the same layout, without its
+        dispatch: the prior is one constant, the response one kernel block.
+        None when a walker lies outside (the general path handles it).
+        """
+        if not ((z >= self._lo) & (z <= self._hi)).all():
+            return None
+        model = self.model
+        x = z + self.shift
+        w, d1 = x.shape[0], model.n_loc + 1
+        blocks = x.reshape(w, -1, d1)
+        where = model._units(blocks[..., :-1].reshape(w, -1, d1 - 1))
+        mu = np.empty((w, model.n_sensors))
+        sum_products("bk,bkn->bn", blocks[..., -1], model._gain(where), out=mu)
+        resid = np.subtract(self.data, mu, out=mu)
+        ll = -0.5 * sum_squares(resid) / self._var - self._log_norm
+        out = self._const + ll
         return np.where(np.isnan(out), -np.inf, out)

@@ -26,7 +26,11 @@ __all__ = ["rank_rhat", "average_ranks", "RhatCheck"]
 def average_ranks(values: np.ndarray) -> np.ndarray:
     """Ranks 1..n of ``values`` (n,), ties given their average rank (``scipy.stats.rankdata``)."""
     order = np.argsort(values)
-    ordered = values[order]
+    return _ranks(values[order], order)
+
+
+def _ranks(ordered: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Average ranks of the values whose sorted copy ``ordered`` is ``values[order]``."""
     new = np.empty(ordered.size, dtype=bool)
     new[:1] = True
     np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
@@ -37,14 +41,52 @@ def average_ranks(values: np.ndarray) -> np.ndarray:
     return ranks
 
 
-def _split_rhat_of_scores(split: np.ndarray) -> float:
-    """Split R-hat of (2 chains, half) draws after their normal-score transform."""
-    rank = average_ranks(split.ravel())
-    z = ndtri((rank - 0.375) / (rank.size + 0.25)).reshape(split.shape)
+def _scores(split: np.ndarray) -> np.ndarray:
+    """Normal scores ``ndtri((r - 3/8) / (n + 1/4))`` of the pooled average ranks r of ``split``.
+
+    ``split`` (chains, draws) holds n values.  A walker that rejects a proposal
+    repeats its position, so the chains are runs of equal values: the runs are
+    sorted instead of the draws, each distinct value's average rank is counted
+    from the run lengths (``(first + last) / 2`` of the positions its copies
+    would take in the full sort) and its score is spread back over its runs --
+    the same ranks, hence the same scores, as ranking every draw (which is
+    done when fewer than half the draws repeat their predecessor).
+    """
+    values = split.ravel()
+    head = np.empty(values.size, dtype=bool)
+    head[:1] = True
+    np.not_equal(values[1:], values[:-1], out=head[1:])
+    head[::split.shape[1]] = True  # every chain starts a run
+    starts = np.flatnonzero(head)
+    if 2 * starts.size > values.size:  # few repeats: rank the draws themselves
+        rank = average_ranks(values)
+        return ndtri((rank - 0.375) / (rank.size + 0.25)).reshape(split.shape)
+    lengths = np.diff(np.append(starts, values.size))
+    order = np.argsort(values[starts])
+    ordered = values[starts][order]
+    new = np.empty(ordered.size, dtype=bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    first = np.flatnonzero(new)  # the sorted runs where a distinct value starts
+    position = np.concatenate([[0], np.cumsum(lengths[order])])
+    low, high = position[first], position[np.append(first[1:], ordered.size)]
+    score = ndtri((0.5 * (low + high + 1) - 0.375) / (values.size + 0.25))
+    run_score = np.empty(ordered.size)
+    run_score[order] = np.repeat(score, np.diff(np.append(first, ordered.size)))
+    return np.repeat(run_score, lengths).reshape(split.shape)
+
+
+def _split_rhat(z: np.ndarray) -> float:
+    """Split R-hat of normal scores z (2 chains, half)."""
     n = z.shape[1]
     between = n * np.var(z.mean(axis=1), ddof=1)
     within = np.mean(np.var(z, axis=1, ddof=1))
     return float(np.sqrt((between / within + n - 1) / n))
+
+
+def _split_rhat_of_scores(split: np.ndarray) -> float:
+    """Split R-hat of (2 chains, half) draws after their normal-score transform."""
+    return _split_rhat(_scores(split))
 
 
 def rank_rhat(draws: np.ndarray, bound: float = np.inf) -> float:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
+from .._one import sum_products
 from .._progress import progress_bar
 from ._checkpoint import ChainCheckpoint
 from ._logpost import LogPosterior
@@ -20,11 +23,39 @@ def make_sampler(logpost: LogPosterior, n_walkers: int, options: SamplerOptions,
 
     vectorize = options.vectorize
     fn = logpost if vectorize else (lambda z: float(logpost(z)))
-    sampler = emcee.EnsembleSampler(n_walkers, logpost.prior.n_params, fn, vectorize=vectorize,
-                                    moves=emcee_moves(options.moves))
+    cls = _vector_sampler_class() if vectorize else emcee.EnsembleSampler
+    sampler = cls(n_walkers, logpost.prior.n_params, fn, vectorize=vectorize,
+                  moves=emcee_moves(options.moves))
     seed = int(gen.integers(2**32))
     sampler.random_state = np.random.RandomState(seed).get_state()
     return sampler
+
+
+@functools.cache
+def _vector_sampler_class() -> type:
+    """``emcee.EnsembleSampler`` taking the log-posterior's float array (W,) as it is.
+
+    emcee turns a vectorised log-probability into floats walker by walker (and
+    first looks for blobs in each entry); :class:`LogPosterior` returns a float
+    array without blobs, so one conversion gives the same numbers.  The checks
+    (no infinite or NaN position, no NaN log-probability) are emcee's.
+    """
+    import emcee
+
+    class VectorSampler(emcee.EnsembleSampler):
+        def compute_log_prob(self, coords):
+            if self.params_are_named:  # pragma: no cover - the package never names them
+                return super().compute_log_prob(coords)
+            if np.any(np.isinf(coords)):
+                raise ValueError("At least one parameter value was infinite")
+            if np.any(np.isnan(coords)):
+                raise ValueError("At least one parameter value was NaN")
+            log_prob = np.array(self.log_prob_fn(coords), dtype=float).reshape(len(coords))
+            if np.any(np.isnan(log_prob)):
+                raise ValueError("Probability function returned NaN")
+            return log_prob, None
+
+    return VectorSampler
 
 
 def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: SamplerOptions,
@@ -158,8 +189,8 @@ class AutocorrTime:
         for lag in range(min(n_lag, stop)):
             first = max(start, lag) - lo
             if first < stop - lo:
-                self._lags[lag] += np.einsum("t...,t...->...", y[first - lag:stop - lo - lag],
-                                             y[first:])
+                self._lags[lag] += sum_products("t...,t...->...", y[first - lag:stop - lo - lag],
+                                                y[first:])
 
     def _estimate(self, chain: np.ndarray, n: int) -> tuple[np.ndarray, bool]:
         """(tau (P,), whether every parameter's window lies within the lag bound)."""

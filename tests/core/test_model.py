@@ -120,6 +120,53 @@ def test_one_vector_equals_a_batch_of_one_to_the_bit(geometry, law):
             assert model.log_likelihood(list(x), data) == logl
 
 
+@pytest.mark.parametrize("geometry", ["ring", "sphere"])
+def test_one_vector_short_paths_refuse_what_the_general_path_refuses(geometry):
+    """Bad single vectors and readings raise the general path's InputError, word for word."""
+    model = Model(ARRAYS[geometry](), SIGMA)
+    rng = np.random.default_rng(4)
+    x = _params(model.kind, rng, k=2)
+    data = model.simulate(x, rng=rng)
+    bad_calls = [
+        lambda: model.log_likelihood(x[:-1], data),          # not a multiple of d + 1
+        lambda: model.log_likelihood(x, data[:-1]),          # wrong number of readings
+        lambda: model.log_likelihood(x, data.astype(complex)),
+        lambda: model.log_likelihood(x.astype(complex), data),
+        lambda: model.response(x[:-1]),
+        lambda: model.jacobian(x[:-1]),
+    ]
+    for call in bad_calls:
+        with pytest.raises(InputError) as fast:
+            call()
+        assert "must" in str(fast.value)
+    # the same messages as a batch of one (which never takes a short path)
+    with pytest.raises(InputError, match=r"last axis a multiple") as one:
+        model.response(x[:-1])
+    with pytest.raises(InputError) as batch:
+        model.response(x[None, :-1])
+    assert str(one.value).split("; got")[0] == str(batch.value).split("; got")[0]
+    with pytest.raises(InputError) as one:
+        model.log_likelihood(x, data[:-1])
+    with pytest.raises(InputError) as batch:
+        model.log_likelihood(x[None], data[:-1])
+    assert str(one.value) == str(batch.value)
+
+
+def test_one_vector_log_likelihood_is_a_float_equal_to_the_general_path():
+    """The short path's value is the measurement layer's, to the bit, as a numpy float."""
+    from olsbayes import measurement
+
+    model = Model(Ring(30), SIGMA)
+    rng = np.random.default_rng(6)
+    for k in (1, 2, 4):
+        x = _params(model.kind, rng, k=k)
+        data = model.simulate(x, rng=rng)
+        fast = model.log_likelihood(x, data)
+        general = measurement.log_likelihood(model, x, data)
+        assert fast == general and np.ndim(fast) == 0
+        assert model.log_likelihood(x, data.tolist()) == fast  # a list takes the general path
+
+
 @pytest.mark.parametrize("geometry", sorted(ARRAYS))
 def test_response_is_linear_in_intensities(geometry):
     model = Model(ARRAYS[geometry](), SIGMA)
