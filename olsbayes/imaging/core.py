@@ -16,6 +16,12 @@ it -- is reported in ``ImageResult.at_bound`` and warned about
 sets the estimate.  Chains whose largest split R-hat exceeds
 ``ImageOptions.rhat_max`` (1.01, the posterior sampler's threshold) are warned
 about (:class:`~olsbayes.errors.ConvergenceWarning`).
+
+Without ``n_samples`` the box priors' Gibbs chains (with exact-HMC moves of the
+loose intensities, :mod:`olsbayes.imaging.block`) sample until every intensity
+has rank-normalised split R-hat <= ``rhat_max`` and bulk and tail ESS >=
+``ess_min`` (:mod:`olsbayes.imaging.chains`); a run that reaches
+``max_samples`` first warns :class:`~olsbayes.errors.ConvergenceWarning`.
 """
 
 from __future__ import annotations
