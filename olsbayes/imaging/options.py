@@ -46,7 +46,7 @@ WITHDRAWN = {
 
 _DEFAULTS = {"n_samples": 200, "n_chains": 4, "n_burn": 100, "sampler": "gibbs",
              "neighbours": 4, "window": 15, "restarts": 0, "block": 0.01, "ess_min": 400.0,
-             "max_samples": 4000}
+             "max_samples": 2000}
 _BOX = ("nonnegative", "bounded")
 _SAMPLING = "sampling (NonNegative and Bounded with n_samples > 0, Sparse)"
 _APPLIES = {
@@ -80,7 +80,8 @@ class ImageOptions:
     rhat_max : float
         Warn :class:`~olsbayes.errors.ConvergenceWarning` when the chains'
         largest split R-hat exceeds this (> 1; default 1.01, the threshold of
-        :class:`olsbayes.posterior.SamplerOptions`).
+        :class:`olsbayes.posterior.SamplerOptions`); the convergence-driven
+        run samples until its rank-normalised split R-hat is at most this.
     n_samples : int or None
         Draws kept per chain: exactly this many when given.  Unset, NonNegative
         and Bounded with the Gibbs sampler run until converged (``ess_min``,
@@ -124,7 +125,7 @@ class ImageOptions:
         (> 0; default 400).
     max_samples : int or None
         Cap on the draws per chain of the convergence-driven run (>= 4;
-        default 4000); reaching it unconverged warns
+        default 2000); reaching it unconverged warns
         :class:`~olsbayes.errors.ConvergenceWarning`.
     restarts : int or None
         TwoLevel: extra searches, each from the L1 relaxation rounded at random

@@ -149,7 +149,7 @@ def test_settings_a_prior_cannot_honour_are_refused(prior, kwargs, match):
 
 def test_resolve_fills_each_priors_defaults_and_only_those():
     sampled = dict(n_samples=200, n_chains=4, n_burn=100, sampler="gibbs", neighbours=4)
-    box = dict(sampled, n_samples=None, window=15, block=0.01, ess_min=400.0, max_samples=4000)
+    box = dict(sampled, n_samples=None, window=15, block=0.01, ess_min=400.0, max_samples=2000)
     assert ImageOptions().resolve(Bounded()) == ImageOptions(**box)
     assert ImageOptions().resolve(NonNegative()) == ImageOptions(**box)
     fixed = ImageOptions(n_samples=50).resolve(Bounded())
