@@ -39,8 +39,10 @@ and the error of
   90 % HPD coverage, largest split R-hat per draw: max and median over draws)
   on the first MCMC draws (Gibbs with neighbour-pair moves, and for the bounded
   prior exact window moves along the slow eigen-directions of each source's
-  16-source neighbourhood); ``sparse-median`` is the spike-and-slab posterior
-  median (a source is dark when P(I = 0) > 1/2).
+  16-source neighbourhood, and exact-HMC moves of its loose block), run until
+  every intensity has R-hat <= 1.01 and ESS >= 400 (``image``'s default; a
+  fixed length with ``--n-samples``); ``sparse-median`` is the spike-and-slab
+  posterior median (a source is dark when P(I = 0) > 1/2).
 
 ``--truth prior`` draws a new scene per noise draw from the bounded prior
 U(0, 1) instead of OLSS (only the bounded and Gaussian rows): there truth and
@@ -49,9 +51,9 @@ prior agree, so the coverage of a sampler that mixes is 0.90 on average.
 "err sd" is the standard deviation of (estimate - truth) pooled over pixels
 and draws; "rmse" includes the mean error.
 
-``python analyses/fig2_imaging.py`` (T = 20, 1 MCMC draw of 60 x 4 samples)
-or ``--full`` (T = 40, 20 MCMC draws of 300 x 4 samples; ``--no-sparse``
-skips the slowest sampler, ``--n-samples`` sets the chain length).
+``python analyses/fig2_imaging.py`` (T = 20, 1 MCMC draw; spike-and-slab chains
+of 60 x 4 samples) or ``--full`` (T = 40, 20 MCMC draws; 300 x 4; ``--no-sparse``
+skips the spike-and-slab sampler, ``--n-samples`` fixes every chain's length).
 Writes ``fig2_imaging_<sensors>.png`` and ``fig2_imaging.csv`` to ``--out``
 (default ``out/fig2_imaging``).
 """
@@ -97,7 +99,7 @@ def _errors(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 def run_convention(sensors: str, sources: str, trials: int, n_mcmc: int, n_samples: int,
                    rng: np.random.Generator, truth_kind: str = "olss",
                    sparse: bool = True, letter_rows: int = 11,
-                   two_level: bool = True) -> tuple[list[dict], dict]:
+                   two_level: bool = True, fixed_box: bool = False) -> tuple[list[dict], dict]:
     model = ob.Model(fig2_sphere(sensors), SIGMA)
     dirs = olss_directions(sources)
     a = design_matrix(model, dirs)
@@ -143,8 +145,11 @@ def run_convention(sensors: str, sources: str, trials: int, n_mcmc: int, n_sampl
             runs = [("gaussian", "gaussian", {})]
             if t < n_mcmc:
                 mc = dict(n_samples=n_samples, n_burn=n_samples // 2)
+                # the bounded prior: the default run (until R-hat <= 1.01 and ESS >= 400
+                # for every intensity) unless --n-samples fixes the chains' length
+                box = ImageOptions(**mc) if fixed_box else ImageOptions()
                 runs += [("bounded-gibbs", Bounded(i_max=1.0),
-                          dict(options=ImageOptions(sampler="gibbs", **mc), rng=rng))]
+                          dict(options=box, rng=rng, progress=False))]
                 if binary and sparse:
                     runs += [("sparse", Sparse(i_max=1.0),
                               dict(options=ImageOptions(**mc), rng=rng))]
@@ -226,7 +231,8 @@ def main() -> None:
                    help="'prior': a new scene per draw from the bounded prior U(0, 1) "
                         "(checks coverage where truth and prior agree; no 0/1 estimators)")
     p.add_argument("--n-samples", type=int, default=None,
-                   help="kept draws per chain (burn-in half of it); overrides the mode's")
+                   help="kept draws per chain (burn-in half of it) of the samplers; "
+                        "without it the bounded prior's chains run until converged")
     p.add_argument("--no-sparse", action="store_true",
                    help="skip the spike-and-slab rows (the slowest sampler)")
     p.add_argument("--letter-rows", type=int, choices=(11, 12), default=11,
@@ -247,7 +253,8 @@ def main() -> None:
             continue
         r, keep = run_convention(sensors, sources, trials, n_mcmc, n_samples,
                                  np.random.default_rng(ss), args.truth, not args.no_sparse,
-                                 args.letter_rows, not args.mode_only)
+                                 args.letter_rows, not args.mode_only,
+                                 fixed_box=args.n_samples is not None)
         rows += r
         if sources == "endpoints":
             print("wrote", figure(keep, sensors, out))

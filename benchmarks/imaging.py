@@ -15,7 +15,8 @@ the range endpoints) the estimators run side by side on the same noise draws:
   is within 0.5 of the truth at every pixel (rounding it recovers the scene);
 * ``gaussian``      closed-form posterior mean (prior N(0.5, 0.5^2));
 * ``bounded``       posterior mean of the uniform [0, 1] prior (Gibbs + pair moves +
-  window moves along the slow eigen-directions of each source's 16-source window);
+  window moves along the slow eigen-directions of each source's 16-source window +
+  exact-HMC moves of the loose block), fixed chain length (see ``--n-samples``);
   ``bounded-nowin`` the same without the window moves (``ImageOptions(window=0)``);
 * ``sparse``        posterior mean of the spike-and-slab prior (Gibbs + pair moves).
 

@@ -9,9 +9,12 @@ sub-sensor has an antipode, design rank 135 of 304; ``linspace``: 19 distinct
 meridians, rank 251):
 
 * ``gaussian``     closed form (exact, independent draws): nothing to mix;
-* ``nonnegative``, ``bounded``  ``image`` with its Gibbs sampler (default) or exact
-  HMC, ``--chains`` chains of ``--samples`` kept draws (burn-in half that),
-  started around the mode;
+* ``nonnegative``, ``bounded``  ``image`` with its default: the Gibbs sampler with
+  block HMC moves of the loose intensities, run until every intensity has
+  R-hat <= 1.01 and bulk and tail ESS >= 400 (``--samples`` unset; sampler
+  ``gibbs/auto``), or ``--chains`` chains of ``--samples`` kept draws (burn-in
+  half that) with the samplers of ``--samplers`` (``gibbs``, ``hmc``, or
+  ``gibbs-noblock``: Gibbs without the block moves);
 * ``two-level``    :func:`olsbayes.imaging.binary_gibbs.two_level_gibbs` (windows of
   9 neighbouring sources) from the MAP scene in every chain (``map``) and from
   dispersed starts -- independent random bit patterns, P(bright) = 1/2
@@ -19,15 +22,19 @@ meridians, rank 251):
   patterns) and the share of bits whose chains disagree at the end.
 
 Printed per row: largest R-hat, smallest bulk and tail ESS over the
-intensities (arviz, rank-normalised), seconds.  Then the coverage table:
-bounded prior (``i_max = 1``), truths drawn from Uniform(0, 1) on the 8-source
-scene of ``benchmarks/imaging.py`` (sigma = 0.3, where its chains mix), 90 %
-HPD intervals pooled over sources and draws, with the binomial standard error
-of the pooled share (draws are independent; the 8 sources of one draw are not,
+intensities (arviz, rank-normalised), CPU seconds of the ``image`` call,
+and "met"/"not met" for the goals R-hat <= 1.01 and ESS >= 400.  A last table
+times the default ``image(model, data, directions)`` call (prior "bounded",
+i_max from the readings) and its mode-only path against the 0.5 s CPU goal.
+Then the coverage table: bounded prior (``i_max = 1``), truths drawn from Uniform(0,
+1) on the 8-source scene of ``benchmarks/imaging.py`` (sigma = 0.3, where its chains
+mix), 90 % HPD intervals pooled over sources and draws, with the binomial standard
+error of the pooled share (draws are independent; the 8 sources of one draw are not,
 so the error is a lower bound), per sensor convention.
 
-``python benchmarks/imaging_mixing.py`` (quick: 200 draws per chain, 10
-coverage draws) or ``--full`` (2000 draws per chain, 100 coverage draws).
+``python benchmarks/imaging_mixing.py`` (quick: the default convergence-driven
+run, 10 coverage draws) or ``--full`` (100 coverage draws); ``--samples N``
+runs fixed chains of N draws.
 """
 
 from __future__ import annotations
@@ -80,16 +87,47 @@ def _fig2(sensors: str, seed: int):
 def box_row(sensors, prior_name, sampler, n_samples, n_chains, seed):
     model, dirs, _, y = _fig2(sensors, seed)
     prior = Bounded(i_max=1.0) if prior_name == "bounded" else NonNegative()
-    opts = ImageOptions(n_samples=n_samples, n_burn=n_samples // 2, n_chains=n_chains,
-                        sampler=sampler)
-    t0 = time.perf_counter()
+    if n_samples is None:  # the default: convergence-driven Gibbs with block moves
+        opts, sampler = ImageOptions(n_chains=n_chains), "gibbs/auto"
+    else:
+        extra = {"block": 0.0} if sampler == "gibbs-noblock" else {}
+        opts = ImageOptions(n_samples=n_samples, n_burn=n_samples // 2, n_chains=n_chains,
+                            sampler=sampler.split("-")[0], **extra)
+    c0 = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = ob.image(model, y, dirs, prior, options=opts, rng=seed)
-    sec = time.perf_counter() - t0
+        res = ob.image(model, y, dirs, prior, options=opts, rng=seed, progress=False)
+    cpu = time.process_time() - c0
     rhat, bulk, tail = _diagnostics(res.samples)
-    return dict(sensors=sensors, prior=prior_name, sampler=sampler, draws=n_samples,
-                rhat=rhat, ess_bulk=bulk, ess_tail=tail, sec=sec)
+    return dict(sensors=sensors, prior=prior_name, sampler=sampler, draws=res.samples.shape[1],
+                rhat=rhat, ess_bulk=bulk, ess_tail=tail, cpu=cpu,
+                rhat_goal=_met(rhat <= 1.01), ess_goal=_met(min(bulk, tail) >= 400))
+
+
+def _met(ok: bool) -> str:
+    return "met" if ok else "not met"
+
+
+def default_call_rows(seed, repeats=3):
+    """CPU of ``image(model, data, directions)`` (all defaults) and of its mode-only path."""
+    rows = []
+    for sensors in ("grid", "linspace"):
+        model, dirs, _, y = _fig2(sensors, seed)
+        for label, kw in (("default", {}), ("mode-only", {"options": ImageOptions(n_samples=0)})):
+            cpus = []
+            for r in range(repeats if label == "mode-only" else 1):
+                c0 = time.process_time()
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    res = ob.image(model, y, dirs, rng=seed + r, progress=False, **kw)
+                cpus.append(time.process_time() - c0)
+            cpu = float(np.median(cpus))
+            rhat, bulk, tail = (_diagnostics(res.samples) if res.samples is not None
+                                else (float("nan"),) * 3)
+            rows.append(dict(sensors=sensors, call=label, cpu=cpu, goal_cpu=0.5,
+                             cpu_goal=_met(cpu <= 0.5), rhat=rhat, ess_bulk=bulk,
+                             ess_tail=tail))
+    return rows
 
 
 def two_level_row(sensors, starts, n_samples, n_chains, seed):
@@ -152,15 +190,21 @@ def main(argv=None):
     ap.add_argument("--chains", type=int, default=4)
     ap.add_argument("--trials", type=int, default=None, help="coverage draws")
     ap.add_argument("--seed", type=int, default=3)
-    ap.add_argument("--only", choices=("box", "two-level", "coverage"), default=None)
-    ap.add_argument("--samplers", default="gibbs,hmc",
-                    help="box-prior samplers, comma-separated (hmc is slow on 'grid')")
+    ap.add_argument("--only", choices=("box", "default", "two-level", "coverage"),
+                    default=None)
+    ap.add_argument("--samplers", default="gibbs",
+                    help="with --samples: box-prior samplers, comma-separated, of gibbs, "
+                         "gibbs-noblock, hmc (hmc is slow on 'grid')")
     args = ap.parse_args(argv)
-    n = args.samples or (2000 if args.full else 200)
+    n = args.samples
     trials = args.trials or (100 if args.full else 10)
     if args.only in (None, "box"):
+        samplers = ["auto"] if n is None else args.samplers.split(",")
         _print([box_row(s, p, smp, n, args.chains, args.seed) for s in ("grid", "linspace")
-                for p in ("nonnegative", "bounded") for smp in args.samplers.split(",")])
+                for p in ("nonnegative", "bounded") for smp in samplers])
+    if args.only in (None, "default"):
+        _print(default_call_rows(args.seed))
+    n = n or 200
     if args.only in (None, "two-level"):
         _print([two_level_row(s, st, n, args.chains, args.seed) for s in ("grid", "linspace")
                 for st in ("map", "dispersed")])

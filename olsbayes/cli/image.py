@@ -77,7 +77,8 @@ register_section(Section(
         "level": Field("float", default=0.9, low=0.01, high=0.999, doc="interval credibility"),
         # the keys below have no default here: each one given must apply to the prior
         "n_samples": Field("int", low=0, high=1_000_000,
-                           doc="draws per chain (default 200; 0 = posterior mode only)"),
+                           doc="draws per chain (default: nonnegative and bounded sample "
+                               "until converged, others 200; 0 = posterior mode only)"),
         "n_chains": Field("int", low=1, high=256, doc="sampler chains (default 4)"),
         "sampler": Field("str", choices=SAMPLERS, doc="box-prior sampler (default gibbs)"),
         "neighbours": Field("int", low=0, high=64, doc="pair moves per source (default 4)"),

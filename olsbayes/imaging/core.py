@@ -16,6 +16,12 @@ it -- is reported in ``ImageResult.at_bound`` and warned about
 sets the estimate.  Chains whose largest split R-hat exceeds
 ``ImageOptions.rhat_max`` (1.01, the posterior sampler's threshold) are warned
 about (:class:`~olsbayes.errors.ConvergenceWarning`).
+
+Without ``n_samples`` the box priors' Gibbs chains (with exact-HMC moves of the
+loose intensities, :mod:`olsbayes.imaging.block`) sample until every intensity
+has rank-normalised split R-hat <= ``rhat_max`` and bulk and tail ESS >=
+``ess_min`` (:mod:`olsbayes.imaging.chains`); a run that reaches
+``max_samples`` first warns :class:`~olsbayes.errors.ConvergenceWarning`.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from .._validation import as_rng, finite_array
 from ..errors import ConvergenceWarning, InputError, NullSpaceWarning, PriorBoundWarning
 from ..model import Model
 from .binary import sparse_relaxation, two_level_map
+from .chains import ConvergenceRule, box_gibbs
 from .design import Design, analyse_design, check_directions, design_matrix
 from .gaussian import gaussian_posterior
 from .neighbours import neighbour_groups, neighbour_pairs
@@ -229,31 +236,49 @@ def _sampled(model, loc, a, y, mode, design, prior, opts, gen, progress):
     """Draws of the box / spike-and-slab posterior from chains started around the mode."""
     hi, scale, sigma = prior.upper, prior.scale, model.sigma
     x0 = _starts(mode, opts.n_chains, hi, scale, gen)
-    acc = 1.0
+    acc, run = 1.0, None
+    total = None if opts.n_samples is None else opts.n_burn + opts.n_samples
     with progress_bar(enabled=progress, desc=f"imaging ({opts.sampler}, {opts.n_chains} chains)",
-                      unit=" sweeps", total=opts.n_burn + opts.n_samples) as bar:
-        if opts.sampler == "gibbs":
-            draws = _gibbs(model, loc, a, y, x0, prior, opts, gen, bar.update)
+                      unit=" sweeps", total=total) as bar:
+        if isinstance(prior, Sparse):
+            draws = _sparse_gibbs(model, loc, a, y, x0, prior, opts, gen, bar.update)
+        elif opts.sampler == "gibbs":
+            run = _box_gibbs(model, loc, a, y, x0, prior, opts, gen, bar)
+            draws, acc = run.samples, run.acceptance
         else:
             draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen,
                               design, bar.update)
-    return _from_draws(prior.name, draws, mode, design, opts, hi, acc)
+    if run is not None and run.converged is False:
+        d = run.diagnostics
+        warnings.warn(
+            f"the gibbs chains stopped at max_samples = {opts.max_samples} draws per chain "
+            f"before converging: R-hat {d['rhat']:.3g} (target <= {opts.rhat_max:g}), ESS bulk "
+            f"{d['ess_bulk']:.0f} and tail {d['ess_tail']:.0f} (target >= {opts.ess_min:g}); "
+            "raise max_samples and treat sd and intervals with care",
+            ConvergenceWarning, stacklevel=4)
+    return _from_draws(prior.name, draws, mode, design, opts, hi, acc,
+                       warn_rhat=run is None or run.diagnostics is None)
 
 
-def _gibbs(model, loc, a, y, x0, prior, opts, gen, step):
-    spike = isinstance(prior, Sparse)
-    extra = {}
-    if spike:  # dim sources of the jittered mode start in the spike
-        x0 = np.where(x0 < 0.1 * prior.i_max, 0.0, x0)
-        extra["w_prior"] = prior.weight_prior
-    elif opts.window and a.shape[1] > 1:
-        extra["windows"] = window_moves(a, neighbour_groups(model, loc, opts.window),
-                                        model.sigma)
+def _sparse_gibbs(model, loc, a, y, x0, prior, opts, gen, step):
+    x0 = np.where(x0 < 0.1 * prior.i_max, 0.0, x0)  # dim sources of the jittered mode: spike
     run = gibbs_intensities(a, y, model.sigma, prior.upper, x0, opts.n_samples, rng=gen,
-                            n_burn=opts.n_burn, spike=spike,
+                            n_burn=opts.n_burn, spike=True,
                             pairs=neighbour_pairs(model, loc, opts.neighbours), step=step,
-                            **extra)
+                            w_prior=prior.weight_prior)
     return run.samples
+
+
+def _box_gibbs(model, loc, a, y, x0, prior, opts, gen, bar):
+    windows = None
+    if opts.window and a.shape[1] > 1:
+        windows = window_moves(a, neighbour_groups(model, loc, opts.window), model.sigma)
+    rule = None if opts.n_samples is not None else ConvergenceRule(
+        opts.rhat_max, opts.ess_min, opts.max_samples)
+    return box_gibbs(a, y, model.sigma, prior.upper, x0, rng=gen, n_samples=opts.n_samples,
+                     n_burn=opts.n_burn, pairs=neighbour_pairs(model, loc, opts.neighbours),
+                     windows=windows, block=opts.block * prior.scale, scale=prior.scale,
+                     rule=rule, step=bar.update, status=bar.set_postfix_str)
 
 
 def _starts(mode, n_chains, hi, scale, gen):
@@ -277,14 +302,14 @@ def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design, step):
     return run.samples, run.acceptance
 
 
-def _from_draws(prior, draws, mode, design, opts, hi, acc):
+def _from_draws(prior, draws, mode, design, opts, hi, acc, warn_rhat=True):
     flat = draws.reshape(-1, draws.shape[-1])
     k = flat.shape[1]
     level, used = opts.level, opts.sampler
     lo_b, hi_b = np.zeros(k), np.full(k, hi)
     lower, upper = hpd_interval(flat, level, lo_b, hi_b)
     rhat = float(np.nanmax(split_rhat(draws))) if draws.shape[0] > 1 else float("nan")
-    if rhat > opts.rhat_max:
+    if warn_rhat and rhat > opts.rhat_max:
         warnings.warn(
             f"the {used} chains have not mixed: largest split R-hat {rhat:.3g} > "
             f"{opts.rhat_max:g}; increase n_samples/n_burn and treat sd and intervals with care",

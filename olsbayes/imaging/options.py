@@ -9,8 +9,10 @@ one that the prior -- with the sampler and ``n_samples`` chosen -- uses, else
 prior              fields used besides ``level`` and ``null_warn``
 =================  ============================================================
 Gaussian           none (closed form)
-NonNegative,       ``n_samples``; when it is > 0 also ``n_chains``, ``n_burn``,
-Bounded            ``sampler`` and, with the Gibbs sampler, ``neighbours``, ``window``
+NonNegative,       ``n_samples``; when it is not 0 also ``n_chains``, ``n_burn``,
+Bounded            ``sampler`` and, with the Gibbs sampler, ``neighbours``, ``window``,
+                   ``block``; with the Gibbs sampler and ``n_samples`` unset (the
+                   convergence-driven run) also ``ess_min`` and ``max_samples``
 Sparse             ``n_samples`` (>= 4), ``n_chains``, ``n_burn``, ``sampler``
 (experimental)     (``"gibbs"`` only), ``neighbours``
 TwoLevel           ``n_samples`` (0 only), ``neighbours``, ``restarts``, ``reference``
@@ -22,6 +24,8 @@ from __future__ import annotations
 import dataclasses
 import numbers
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from .._validation import finite_array, integer, positive_float
 from ..errors import InputError
@@ -41,7 +45,9 @@ WITHDRAWN = {
 }
 
 _DEFAULTS = {"n_samples": 200, "n_chains": 4, "n_burn": 100, "sampler": "gibbs",
-             "neighbours": 4, "window": 15, "restarts": 0}
+             "neighbours": 4, "window": 15, "restarts": 0, "block": 0.01, "ess_min": 400.0,
+             "max_samples": 2000}
+_BOX = ("nonnegative", "bounded")
 _SAMPLING = "sampling (NonNegative and Bounded with n_samples > 0, Sparse)"
 _APPLIES = {
     "n_samples": "every prior but Gaussian (closed form)",
@@ -50,6 +56,10 @@ _APPLIES = {
     "sampler": _SAMPLING,
     "neighbours": "the Gibbs sampler and the TwoLevel search",
     "window": "the Gibbs sampler of NonNegative and Bounded",
+    "block": "the Gibbs sampler of NonNegative and Bounded",
+    "ess_min": "the convergence-driven run (NonNegative and Bounded, Gibbs, n_samples unset)",
+    "max_samples": "the convergence-driven run (NonNegative and Bounded, Gibbs, "
+                   "n_samples unset)",
     "restarts": "the TwoLevel search",
     "reference": "the TwoLevel search",
 }
@@ -70,10 +80,14 @@ class ImageOptions:
     rhat_max : float
         Warn :class:`~olsbayes.errors.ConvergenceWarning` when the chains'
         largest split R-hat exceeds this (> 1; default 1.01, the threshold of
-        :class:`olsbayes.posterior.SamplerOptions`).
+        :class:`olsbayes.posterior.SamplerOptions`); the convergence-driven
+        run samples until its rank-normalised split R-hat is at most this.
     n_samples : int or None
-        Draws kept per chain (default 200; 0 for TwoLevel, which has no
-        sampler).  0 for NonNegative and Bounded is the mode-only path: the
+        Draws kept per chain: exactly this many when given.  Unset, NonNegative
+        and Bounded with the Gibbs sampler run until converged (``ess_min``,
+        ``rhat_max``, ``max_samples``); otherwise the default is 200 (0 for
+        TwoLevel, which has no sampler).  0 for NonNegative and Bounded is the
+        mode-only path: the
         posterior mode (bounded / nonnegative least squares) and the design
         diagnostics, no sampling; ``mean`` is then the mode and ``sd``,
         ``lower``, ``upper`` and ``rhat`` are NaN (no spread is computed: a
@@ -98,6 +112,21 @@ class ImageOptions:
         eigen-directions of ``A_B^T A_B`` for every window ``B`` of a source and
         its ``window`` nearest sources -- local patterns the array barely sees
         (:mod:`olsbayes.imaging.window`).  0 disables; default 15.
+    block : float or None
+        Box priors with Gibbs: the intensities whose sd over the pilot (the
+        first half of the burn-in) exceeds ``block * scale`` (the prior's
+        scale) form a block that every sweep also moves jointly by one
+        exact-HMC trajectory (:mod:`olsbayes.imaging.block`): the wide,
+        non-local directions of an ill-posed design.  >= 0; 0 disables;
+        default 0.01.
+    ess_min : float or None
+        The convergence-driven run stops when every intensity has bulk and
+        tail ESS >= ``ess_min`` and rank-normalised split R-hat <= ``rhat_max``
+        (> 0; default 400).
+    max_samples : int or None
+        Cap on the draws per chain of the convergence-driven run (>= 4;
+        default 2000); reaching it unconverged warns
+        :class:`~olsbayes.errors.ConvergenceWarning`.
     restarts : int or None
         TwoLevel: extra searches, each from the L1 relaxation rounded at random
         (a source starts bright with probability relaxed value / i_max, drawn
@@ -119,6 +148,9 @@ class ImageOptions:
     neighbours: int | None = None
     window: int | None = None
     restarts: int | None = None
+    block: float | None = None
+    ess_min: float | None = None
+    max_samples: int | None = None
     reference: tuple[float, ...] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -133,10 +165,17 @@ class ImageOptions:
             raise InputError(f"rhat_max must be a number > 1; got {rmax!r}")
         object.__setattr__(self, "rhat_max", float(rmax))
         lows = {"n_samples": 0, "n_chains": 1, "n_burn": 0, "neighbours": 0, "window": 0,
-                "restarts": 0}
+                "restarts": 0, "max_samples": 4}
         for name, low in lows.items():
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, integer(name, getattr(self, name), low=low))
+        if self.block is not None:
+            b = self.block
+            if isinstance(b, bool) or not isinstance(b, numbers.Real) or not 0 <= b < np.inf:
+                raise InputError(f"block must be a finite number >= 0; got {b!r}")
+            object.__setattr__(self, "block", float(b))
+        if self.ess_min is not None:
+            object.__setattr__(self, "ess_min", positive_float("ess_min", self.ess_min))
         s = self.sampler
         if isinstance(s, str) and s.lower() in WITHDRAWN:
             raise InputError(f"sampler {s!r} is not offered: {WITHDRAWN[s.lower()]}")
@@ -162,8 +201,8 @@ class ImageOptions:
             ``n_samples``, or an ``n_samples`` or ``sampler`` it cannot honour.
         """
         name = prior.name
-        n = _n_samples(name, self.n_samples)
         sampler = self.sampler or _DEFAULTS["sampler"]
+        n = _n_samples(name, self.n_samples, sampler)
         if name == "sparse" and sampler != "gibbs":
             raise InputError(f"sampler must be 'gibbs' for prior 'sparse' (the spike-and-slab "
                              f"posterior is sampled by Gibbs only); got {sampler!r}")
@@ -178,9 +217,11 @@ class ImageOptions:
         return dataclasses.replace(self, **fill)
 
 
-def _n_samples(prior: str, n_samples: int | None) -> int | None:
-    """The number of draws per chain for ``prior`` (None for the closed form)."""
+def _n_samples(prior: str, n_samples: int | None, sampler: str) -> int | None:
+    """Draws per chain for ``prior`` (None: closed form, or the convergence-driven run)."""
     if prior == "gaussian":
+        return None
+    if n_samples is None and prior in _BOX and sampler == "gibbs":
         return None
     if n_samples is None:
         return 0 if prior == "two-level" else _DEFAULTS["n_samples"]
@@ -202,7 +243,9 @@ def _used(prior: str, n_samples: int | None, sampler: str) -> set[str]:
         return {"n_samples"}
     used = {"n_samples", "n_chains", "n_burn", "sampler"}
     if sampler == "gibbs":
-        used |= {"neighbours"} if prior == "sparse" else {"neighbours", "window"}
+        used |= {"neighbours"} if prior == "sparse" else {"neighbours", "window", "block"}
+    if n_samples is None:
+        used |= {"ess_min", "max_samples"}
     return used
 
 
@@ -211,5 +254,7 @@ def _refuse(key: str, value: object, prior: str, n_samples: int | None, sampler:
     context = ""
     if prior in ("nonnegative", "bounded") and key not in ("restarts", "reference"):
         context = " with n_samples = 0" if n_samples == 0 else f" with sampler {sampler!r}"
+        if key in ("ess_min", "max_samples") and n_samples:
+            context = f" with n_samples = {n_samples} (a fixed run)"
     raise InputError(f"{key}{shown} does not apply to prior {prior!r}{context}: it is used by "
                      f"{_APPLIES[key]}; leave it unset")

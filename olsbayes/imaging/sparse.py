@@ -110,6 +110,7 @@ def gibbs_intensities(
     pairs: np.ndarray | None = None,
     windows: WindowMoves | None = None,
     step: Callable[[], object] | None = None,
+    after_sweep: Callable[[np.ndarray], object] | None = None,
 ) -> GibbsSamples:
     """Run the single-site Gibbs sampler (random scan order per sweep).
 
@@ -139,9 +140,18 @@ def gibbs_intensities(
         (:mod:`olsbayes.imaging.window`), once each per sweep; box priors only
         (``spike`` False).  With them the single-site, pair and window moves of
         a sweep run together in compiled code, in one random order.
+    step : callable, optional
+        Called after every sweep (a progress bar's ``update``).
+    after_sweep : callable, optional
+        Called with the intensities ``x`` (C, K) after the moves of every sweep;
+        it may move them in place by an exact move of its own (e.g.
+        :func:`olsbayes.imaging.block.block_step`).  Box priors only.
     """
     if spike and windows is not None and windows.n_moves:
         raise InputError("windows: window moves need the box prior (spike=False); got spike=True")
+    if spike and after_sweep is not None:
+        raise InputError("after_sweep: extra moves need the box prior (spike=False); got "
+                         "spike=True")
     x = np.array(x0, dtype=float)
     c, k = x.shape
     r = y - x @ a.T
@@ -167,6 +177,8 @@ def gibbs_intensities(
             if n_pairs[p] > 0:
                 _pair(x, r, pairs[p, 0], pairs[p, 1], d_pairs[p], n_pairs[p], sigma, i_max,
                       spike, rng)
+        if after_sweep is not None:
+            after_sweep(x)
         if spike:
             n_on = np.count_nonzero(x, axis=1)
             w = rng.beta(w_prior[0] + n_on, w_prior[1] + k - n_on)

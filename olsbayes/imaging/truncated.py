@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import log_ndtr, ndtri_exp
 
-__all__ = ["TruncatedSamples", "sample_truncated_gaussian", "truncnorm_1d"]
+__all__ = ["TruncatedSamples", "sample_truncated_gaussian", "trajectory", "truncnorm_1d"]
 
 _TINY_T = 1e-12
 
@@ -102,34 +102,57 @@ def _hit_times(a, v, h_lo, h_hi):
     return t, j % k, j >= k
 
 
-def _trajectory(x, mu, v, cov, lower, upper, t_total, max_bounces):
-    """Follow the exact dynamics for time ``t_total``; returns (x_end, n_bounces)."""
+def trajectory(
+    x: np.ndarray, mu: np.ndarray, v: np.ndarray, cov: np.ndarray, lower: np.ndarray,
+    upper: np.ndarray, t_total: float, max_bounces: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Follow the exact dynamics of C chains for time ``t_total``.
+
+    Parameters
+    ----------
+    x, v : ndarray, shape (C, K)
+        Start positions (inside the box) and velocities.
+    mu : ndarray, shape (K,) or (C, K)
+        Mean of the (untruncated) Gaussian, shared or one per chain.
+    cov : ndarray, shape (K, K)
+        Its covariance (the mass matrix's inverse).
+    lower, upper : ndarray, shape (K,)
+        The box.
+    t_total : float
+    max_bounces : int
+
+    Returns
+    -------
+    x_end : ndarray, shape (C, K)
+        End positions; NaN rows for trajectories stopped at ``max_bounces``.
+    n_bounces : ndarray of int, shape (C,)
+    """
     c = x.shape[0]
+    mu = np.broadcast_to(mu, x.shape)
     a = x - mu
     x_end = x.copy()
     t_left = np.full(c, t_total)
     nb = np.zeros(c, dtype=int)
     active = np.arange(c)
-    h_lo, h_hi = lower - mu, upper - mu
     sdiag = np.diag(cov)
     while active.size:
-        aa, vv = a[active], v[active]
-        t, k, up = _hit_times(aa, vv, h_lo, h_hi)
+        aa, vv, mm = a[active], v[active], mu[active]
+        t, k, up = _hit_times(aa, vv, lower - mm, upper - mm)
         done = t >= t_left[active]
         if np.any(done):
             td = t_left[active[done]][:, None]
-            x_end[active[done]] = mu + aa[done] * np.cos(td) + vv[done] * np.sin(td)
+            x_end[active[done]] = mm[done] + aa[done] * np.cos(td) + vv[done] * np.sin(td)
         go = ~done
         idx, t, k, up = active[go], t[go][:, None], k[go], up[go]
         if idx.size:
-            aa, vv = aa[go], vv[go]
-            xs = mu + aa * np.cos(t) + vv * np.sin(t)
+            aa, vv, mm = aa[go], vv[go], mm[go]
+            xs = mm + aa * np.cos(t) + vv * np.sin(t)
             vel = -aa * np.sin(t) + vv * np.cos(t)
             rows = np.arange(idx.size)
             xs[rows, k] = np.where(up, upper[k], lower[k])
             vk = vel[rows, k]
             vel = vel - (2.0 * vk / sdiag[k])[:, None] * cov[k]
-            a[idx], v[idx] = xs - mu, vel
+            a[idx], v[idx] = xs - mm, vel
             t_left[idx] -= t[:, 0]
             nb[idx] += 1
             over = nb[idx] > max_bounces
@@ -194,7 +217,7 @@ def sample_truncated_gaussian(
     n_acc = n_traj = bounces = 0
     for it in range(n_burn + n_samples):
         v = rng.standard_normal((c, k)) @ lq_inv  # rows ~ N(0, S)
-        x_new, nb = _trajectory(x, mu, v, cov, lower, upper, t_total, max_bounces)
+        x_new, nb = trajectory(x, mu, v, cov, lower, upper, t_total, max_bounces)
         ok = np.all(np.isfinite(x_new), axis=1)
         if ridge > 0:
             d_new = np.sum((np.where(ok[:, None], x_new, x) - centre) ** 2, axis=1)

@@ -77,7 +77,7 @@ def compile_kernels(progress: Callable[[int, int], None] | None = None) -> int:
 
 
 def _image_once() -> None:
-    """One small sampled image: compiles the Gibbs sampler's window sweep."""
+    """One small sampled image: compiles the Gibbs sampler's window sweep and block moves."""
     from ..imaging import Bounded, ImageOptions, image
 
     model = Model(Ring(12), 1e-2)
@@ -86,3 +86,6 @@ def _image_once() -> None:
     image(model, data, directions, Bounded(i_max=1.0),
           options=ImageOptions(n_samples=4, n_burn=2, n_chains=2, window=3), rng=0,
           progress=False)
+    from ..imaging.block import compile_block_kernel
+
+    compile_block_kernel()

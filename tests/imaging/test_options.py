@@ -149,14 +149,18 @@ def test_settings_a_prior_cannot_honour_are_refused(prior, kwargs, match):
 
 def test_resolve_fills_each_priors_defaults_and_only_those():
     sampled = dict(n_samples=200, n_chains=4, n_burn=100, sampler="gibbs", neighbours=4)
-    assert ImageOptions().resolve(Bounded()) == ImageOptions(**sampled, window=15)
-    assert ImageOptions().resolve(NonNegative()) == ImageOptions(**sampled, window=15)
+    box = dict(sampled, n_samples=None, window=15, block=0.01, ess_min=400.0, max_samples=2000)
+    assert ImageOptions().resolve(Bounded()) == ImageOptions(**box)
+    assert ImageOptions().resolve(NonNegative()) == ImageOptions(**box)
+    fixed = ImageOptions(n_samples=50).resolve(Bounded())
+    assert fixed == ImageOptions(**dict(box, n_samples=50, ess_min=None, max_samples=None))
     assert ImageOptions().resolve(Sparse()) == ImageOptions(**sampled)
     assert ImageOptions().resolve(TwoLevel(i_max=1.0)) == ImageOptions(
         n_samples=0, neighbours=4, restarts=0)
     assert ImageOptions().resolve(Gaussian()) == ImageOptions()
     hmc = ImageOptions(sampler="HMC", level=0.8).resolve(Bounded())
     assert hmc.sampler == "hmc" and hmc.level == 0.8 and hmc.neighbours is hmc.window is None
+    assert hmc.n_samples == 200 and hmc.block is hmc.ess_min is None
     assert ImageOptions(n_samples=0).resolve(Bounded()) == ImageOptions(n_samples=0)
 
 

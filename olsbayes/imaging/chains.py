@@ -1,0 +1,179 @@
+"""Chains of the box priors: Gibbs sweeps, block HMC and the convergence-driven run length.
+
+:func:`box_gibbs` runs C chains of the Gibbs sampler of
+:mod:`olsbayes.imaging.sparse` (single-site, neighbour-pair and window moves)
+for the flat prior on ``0 <= I <= i_max``.  The first half of the burn-in is a
+pilot: the intensities whose pooled pilot sd exceeds ``block`` form the loose
+block, which from then on gets one exact-HMC move per sweep
+(:mod:`olsbayes.imaging.block`) -- the moves that cross the wide, non-local
+directions single-site moves random-walk along.  The block is fixed before
+the first kept draw, so the kept chains run one fixed, exact kernel.
+
+With a fixed ``n_samples`` exactly that many draws per chain are kept.
+Without one the chains keep sampling in blocks -- 100 draws, then growing by
+half each time -- until every intensity has rank-normalised split R-hat
+``<= rhat_max`` and bulk and tail ESS ``>= ess_min`` (Vehtari et al. 2021,
+computed by arviz), or until ``max_samples`` draws per chain; the result says
+which (:attr:`BoxRun.converged`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .block import block_move, block_step, loose_block
+from .sparse import gibbs_intensities
+from .window import WindowMoves
+
+__all__ = ["BoxRun", "ConvergenceRule", "box_gibbs", "chain_diagnostics"]
+
+_FIRST = 100  # kept draws per chain before the first convergence check
+_GROWTH = 1.5  # each further block makes the run this much longer
+
+
+@dataclass(frozen=True)
+class ConvergenceRule:
+    """When the convergence-driven run stops.
+
+    Attributes
+    ----------
+    rhat_max : float
+        Largest rank-normalised split R-hat allowed (> 1).
+    ess_min : float
+        Smallest bulk and tail ESS required, every intensity (> 0).
+    max_samples : int
+        Cap on kept draws per chain.
+    """
+
+    rhat_max: float
+    ess_min: float
+    max_samples: int
+
+
+@dataclass(frozen=True)
+class BoxRun:
+    """Draws of :func:`box_gibbs` and how they were made.
+
+    Attributes
+    ----------
+    samples : ndarray, shape (C, S, K)
+    block : ndarray of int, shape (L,)
+        Intensities moved jointly by exact HMC (empty: none loose).
+    acceptance : float
+        Accepted share of the block moves (1.0 without a block).
+    diagnostics : dict or None
+        Of the convergence-driven run: ``rhat``, ``ess_bulk``, ``ess_tail``
+        (worst intensity) and ``converged``; None for a fixed ``n_samples``.
+    """
+
+    samples: np.ndarray
+    block: np.ndarray
+    acceptance: float
+    diagnostics: dict | None = None
+
+    @property
+    def converged(self) -> bool | None:
+        """Whether the convergence-driven run met its rule (None: fixed run)."""
+        return None if self.diagnostics is None else bool(self.diagnostics["converged"])
+
+
+def chain_diagnostics(draws: np.ndarray) -> dict:
+    """Worst rank-normalised split R-hat and smallest bulk / tail ESS of (C, S, K) draws.
+
+    Intensities constant in every chain (no spread to measure) are left out.
+    """
+    from ..posterior._arviz import _known_shapes, import_arviz
+
+    az = import_arviz()
+    with _known_shapes():
+        ds = az.convert_to_dataset(np.asarray(draws, dtype=float))
+    rhat = np.asarray(az.rhat(ds, method="rank")["x"].values, dtype=float)
+    bulk = np.asarray(az.ess(ds, method="bulk")["x"].values, dtype=float)
+    tail = np.asarray(az.ess(ds, method="tail")["x"].values, dtype=float)
+
+    def worst(v, pick):
+        v = v[np.isfinite(v)]
+        return float(pick(v)) if v.size else float("nan")
+
+    return {"rhat": worst(rhat, np.max), "ess_bulk": worst(bulk, np.min),
+            "ess_tail": worst(tail, np.min)}
+
+
+def _met(diag: dict, rule: ConvergenceRule) -> bool:
+    return bool(diag["rhat"] <= rule.rhat_max and diag["ess_bulk"] >= rule.ess_min
+                and diag["ess_tail"] >= rule.ess_min)
+
+
+def box_gibbs(
+    a: np.ndarray, y: np.ndarray, sigma: float, i_max: float, x0: np.ndarray, *,
+    rng: np.random.Generator, n_samples: int | None, n_burn: int, pairs: np.ndarray,
+    windows: WindowMoves | None, block: float, scale: float,
+    rule: ConvergenceRule | None = None, step: Callable[[], object] | None = None,
+    status: Callable[[str], object] | None = None,
+) -> BoxRun:
+    """Chains of the box prior (flat on ``[0, i_max]``) started at ``x0`` (C, K).
+
+    Parameters
+    ----------
+    a, y, sigma, i_max
+        Design (N, K), readings (N,), noise sd, upper bound (may be inf).
+    rng : Generator
+    n_samples : int or None
+        Kept draws per chain; None: the convergence-driven run of ``rule``.
+    n_burn : int
+        Discarded sweeps; its first half is the pilot that picks the block.
+    pairs, windows
+        The Gibbs sampler's pair and window moves
+        (:func:`~olsbayes.imaging.sparse.gibbs_intensities`).
+    block : float
+        Pilot-sd threshold of the loose block (intensity units); 0: no block.
+    scale : float
+        The prior's intensity scale (the block surrogate's size).
+    rule : ConvergenceRule, optional
+        Needed when ``n_samples`` is None.
+    step : callable, optional
+        Called after every sweep.
+    status : callable, optional
+        Called with a one-line status after every convergence check.
+    """
+    kw = dict(pairs=pairs, windows=windows, step=step)
+    pilot = n_burn // 2 if block > 0 and n_burn >= 4 else 0  # too short a pilot: no block
+    x = np.asarray(x0, dtype=float)
+    idx = np.zeros(0, dtype=int)
+    hook, moves = None, [0, 0]
+    if pilot:
+        draws = gibbs_intensities(a, y, sigma, i_max, x, pilot, rng=rng, n_burn=0, **kw).samples
+        x = draws[:, -1]
+        idx = loose_block(draws, block)
+    if idx.size:
+        move = block_move(a, y, sigma, idx, scale)
+
+        def hook(state):
+            acc, _ = block_step(state, move, i_max, rng=rng)
+            moves[0] += acc
+            moves[1] += state.shape[0]
+
+    kw["after_sweep"] = hook
+    first = n_samples if n_samples is not None else min(_FIRST, rule.max_samples)
+    run = gibbs_intensities(a, y, sigma, i_max, x, first, rng=rng, n_burn=n_burn - pilot, **kw)
+    parts = [run.samples]
+    diag = None
+    while n_samples is None:
+        done = sum(p.shape[1] for p in parts)
+        diag = chain_diagnostics(np.concatenate(parts, axis=1))
+        diag["converged"] = _met(diag, rule)
+        if status is not None:
+            status(f"{done} draws/chain, R-hat {diag['rhat']:.3f}, ESS bulk "
+                   f"{diag['ess_bulk']:.0f} tail {diag['ess_tail']:.0f} (target "
+                   f"<= {rule.rhat_max:g}, >= {rule.ess_min:g})")
+        if diag["converged"] or done >= rule.max_samples:
+            break
+        more = min(int(np.ceil(done * (_GROWTH - 1))), rule.max_samples - done)
+        parts.append(gibbs_intensities(a, y, sigma, i_max, parts[-1][:, -1], more, rng=rng,
+                                       n_burn=0, **kw).samples)
+    samples = np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
+    acc = moves[0] / moves[1] if moves[1] else 1.0
+    return BoxRun(samples, idx, acc, diag)
