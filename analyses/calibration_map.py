@@ -69,7 +69,7 @@ from _study_cli import parser, study, table  # noqa: E402
 
 from olsbayes._io import write_text_atomic  # noqa: E402
 
-__all__ = ["main", "groups", "summarise", "cell_state"]
+__all__ = ["main", "groups", "summarise", "cell_state", "reference_table"]
 
 #: Per mode: Ks of the ring, separations, SNRs, trials per cell, emcee step cap.
 MODES = {
@@ -203,6 +203,28 @@ def _mode_help(name: str) -> str:
             f"methods ({emcee} emcee runs, capped at {mode['max_steps']} steps)")
 
 
+def reference_table(rows: list[dict]) -> str:
+    """Per (group, method): cells calibrated / failing / undecided, the worst coverage
+    (the 50 % or 90 % coverage furthest from nominal, over cells with an answer) and
+    the failing cells as ``x/snr``."""
+    out = []
+    for key in dict.fromkeys((r["group"], r["method"]) for r in rows):
+        cells = [r for r in rows if (r["group"], r["method"]) == key and r["state"]]
+        if not cells:
+            continue
+        count = {s: sum(r["state"] == s for r in cells) for s in
+                 ("calibrated", "fails", "undecided")}
+        devs = [(abs(r[f"cov{q}"] - q / 100), r[f"cov{q}"], q) for r in cells
+                for q in (50, 90) if np.isfinite(r[f"cov{q}"])]
+        worst = max(devs) if devs else (np.nan, np.nan, 90)
+        failing = " ".join(f"{r['x']:g}/{r['snr']:g}" for r in cells if r["state"] == "fails")
+        out.append([*key, len(cells), count["calibrated"], count["fails"],
+                    count["undecided"], f"{worst[1]:.2f} ({worst[2]} %)", failing or "-"])
+    head = ["group", "method", "cells", "calibrated", "fails", "undecided", "worst cov",
+            "failing cells (x/snr)"]
+    return table(head, out)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = parser("calibration_map", __doc__, full_help=_mode_help("full"))
     ap.add_argument("--medium", action="store_true", help=_mode_help("medium"))
@@ -238,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
             results[(tag, method)] = study(args, f"{name}-{tag}-{method}", calmap_trial, grid,
                                            n, fixed=fx, seed_offset=offsets[tag], chunk_size=1)
     rows = summarise(results)
-    text = print_table(rows)
+    text = print_table(rows) + "\n\n" + reference_table(rows)
     print(text)
     write_text_atomic(args.out / f"calibration_map-{name}.txt", text + "\n")
     keys = list(dict.fromkeys(k for r in rows for k in r))
