@@ -11,7 +11,7 @@ separation and SNR (``analyses/calibration_map.py``) shows where it is not:
   Fisher intervals there cover the truth far less often than stated -- at one
   spacing and high SNR the 90 % intervals miss in most scenes, for K = 2, 3
   and 4 alike;
-* a source whose intensity is a few of its own standard deviations above zero
+* a source whose intensity is less than three of its own standard deviations above zero
   (low SNR: the Gaussian reaches the prior's edge at 0 and the direction is
   barely localised), as for three sources two spacings apart at SNR 10.
 
@@ -36,9 +36,9 @@ __all__ = ["gaussian_doubts", "warn_gaussian_doubts", "RESOLUTION_SPACINGS", "WE
 
 #: Sources closer than this many sensor spacings are near the resolution limit.
 RESOLUTION_SPACINGS = 1.5
-#: A source whose intensity is below this many of its standard deviations is weak (the
-#: threshold of the Laplace evidence's own check, ``select.diagnostics.THRESHOLDS``).
-WEAK_SDS = 5.0
+#: A source whose intensity is below this many of its standard deviations is weak: its
+#: 90 % Gaussian interval nearly reaches zero.
+WEAK_SDS = 3.0
 
 
 def _min_separation(model, x: np.ndarray) -> np.ndarray:

@@ -61,7 +61,7 @@ def test_well_separated_sources_do_not_warn(sigma):
 def test_doubts_of_a_batch_from_estimates_and_covariances():
     model = ob.Model(ob.Ring(30), 0.01)
     x = np.array([[0.3, 1.0, 0.3 + 1.2 * H, 1.0],   # close
-                  [0.3, 1.0, 0.3 + 4.0 * H, 0.04],  # weak: I = 4 sd
+                  [0.3, 1.0, 0.3 + 4.0 * H, 0.025],  # weak: I = 2.5 sd
                   [0.3, 1.0, 0.3 + 4.0 * H, 1.0],   # fine
                   [0.3, 1.0, 0.3 + 0.5 * H, 1.0]])  # no finite errors: left to the fit
     cov = np.tile(np.diag([1e-4, 1e-4, 1e-4, 1e-4]), (4, 1, 1))
@@ -70,4 +70,4 @@ def test_doubts_of_a_batch_from_estimates_and_covariances():
     np.testing.assert_array_equal(d["close"], [True, False, False, False])
     np.testing.assert_array_equal(d["weak"], [False, True, False, False])
     np.testing.assert_allclose(d["separation"], [1.2, 4.0, 4.0, 0.5], rtol=1e-9)
-    assert RESOLUTION_SPACINGS == 1.5
+    assert RESOLUTION_SPACINGS == 1.5 and WEAK_SDS == 3.0
