@@ -185,3 +185,18 @@ def test_ml_fit_warns_about_a_mirrored_optimum(scene4):
     with warnings.catch_warnings():
         warnings.simplefilter("error", AntipodalWarning)
         fit_ml(fig3, fig3_data, 2)
+
+
+def test_mode_search_with_no_optimum_inside_the_prior_returns_the_centre():
+    """Every optimum brighter than the prior's intensity bound: one mode, the centre,
+    and the automatic choice keeps one ensemble (no crash on an empty mode list)."""
+    from olsbayes.posterior._modal import mode_plan
+
+    model = Model(Ring(30), sigma=1e-2)
+    truth = np.array([0.3, 1.0, 0.3 + np.pi - 0.1, 1.2])  # a near-antipodal pair
+    data = model.simulate(truth, rng=0)
+    prior = default_priors(model, 2, i_max=0.5)  # both intensities above the bound
+    modes, lp = find_modes(model, data, prior, truth, ModeOptions())
+    np.testing.assert_array_equal(modes, truth[None, :])
+    assert lp.shape == (1,) and lp[0] == -np.inf
+    assert mode_plan(model, data, prior, truth, SamplerOptions()) is None
