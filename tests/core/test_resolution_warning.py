@@ -71,3 +71,13 @@ def test_doubts_of_a_batch_from_estimates_and_covariances():
     np.testing.assert_array_equal(d["weak"], [False, True, False, False])
     np.testing.assert_allclose(d["separation"], [1.2, 4.0, 4.0, 0.5], rtol=1e-9)
     assert RESOLUTION_SPACINGS == 1.5 and WEAK_SDS == 3.0
+
+
+def test_sampling_a_close_pair_from_its_ml_start_warns():
+    """sample_posterior's own ML start carries the warning to the sampler's user."""
+    model = ob.Model(ob.Ring(30), 0.01)
+    x = np.column_stack([[0.2, 0.2 + 1.4 * H], [0.75, 1.16]]).ravel()
+    data = model.simulate(x, rng=np.random.default_rng(720))
+    opts = ob.SamplerOptions(n_steps=200, rhat_max=None)
+    with pytest.warns(ob.NearResolutionWarning, match="one source fewer"):
+        ob.sample_posterior(model, data, 2, options=opts, rng=2, progress=False)
