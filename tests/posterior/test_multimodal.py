@@ -200,3 +200,23 @@ def test_mode_search_with_no_optimum_inside_the_prior_returns_the_centre():
     np.testing.assert_array_equal(modes, truth[None, :])
     assert lp.shape == (1,) and lp[0] == -np.inf
     assert mode_plan(model, data, prior, truth, SamplerOptions()) is None
+
+
+def test_mode_evidence_survives_scales_far_apart():
+    """Draws whose sds span 7 decades (a numerically singular covariance for the
+    Student-t proposal): the scaled proposal gives log Z of a normalised Gaussian, 0."""
+    from scipy import stats
+
+    from olsbayes.posterior.multimodal import mode_evidence
+
+    sd = np.array([1e-7, 1.0, 0.5])
+    rng = np.random.default_rng(4)
+    z = rng.standard_normal((400, 3)) * sd
+    with pytest.raises(np.linalg.LinAlgError):  # what the direct proposal meets
+        stats.multivariate_t(loc=z.mean(0), shape=np.cov(z, rowvar=False), df=5.0)
+
+    def logpost(x):
+        return np.sum(stats.norm.logpdf(x / sd) - np.log(sd), axis=-1)
+
+    log_z, se = mode_evidence(logpost, z, 4000, rng)
+    assert abs(log_z) < 4 * se + 0.02 and se < 0.05
