@@ -163,7 +163,7 @@ def laplace(model, data, truth, settings, rng) -> dict:
     sc = score(model, est[None], truth[None])
     z2 = np.array([sc["dir_z2"][0], sc["int_z2"][0]])
     k_hat = int(ob.select_k(model, data, k_max=min(k + 1, 5), method="laplace", rng=rng,
-                            i_max=I_MAX).best)
+                            i_max=I_MAX, progress=False).best)
     cov, _, singular = bound_covariance(model.fisher(est))
     if np.any(singular) or not np.all(np.isfinite(cov)):
         return {"u": np.full(len(truth), np.nan), "z2": z2, "k_hat": k_hat, "converged": False}

@@ -13,9 +13,9 @@ from olsbayes._io import ensure_dir
 __all__ = ["parser", "study", "slug", "table"]
 
 
-def parser(name: str, doc: str) -> argparse.ArgumentParser:
+def parser(name: str, doc: str, full_help: str = "paper-size run") -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=doc.split("\n")[0])
-    ap.add_argument("--full", action="store_true", help="paper-size run")
+    ap.add_argument("--full", action="store_true", help=full_help)
     ap.add_argument("--out", type=Path, default=Path("out") / name, help="output folder")
     ap.add_argument("--executor", default="processes",
                     choices=("serial", "threads", "processes", "dask"))

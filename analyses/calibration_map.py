@@ -31,10 +31,23 @@ the exact grid posterior (K <= 2, SNR <= 300) is the control that shows how
 large that effect is.
 
 Each (group, method) is its own resumable study (checkpoint in --out); methods
-of a group share the study seed, so they see the same scenes.  Modes: quick
-(default), --medium, --full (the reference table); --ks / --groups / --methods
-restrict a run.  Outputs in --out: calibration_map-<mode>.png, .csv and .txt,
-and the studies' checkpoints and NetCDF files.
+of a group share the study seed, so they see the same scenes.  Modes (the
+grids of :data:`MODES`; cells counted over all groups, methods where they apply):
+
+* quick (default): 13 cells x 6 scenes x 7 methods, emcee capped at 3000 steps;
+* ``--medium``: 50 cells x 16 scenes x 7 methods (800 runs of the default emcee,
+  704 of each of the two other emcee variants);
+* ``--full`` (the reference grid): 81 cells x 100 scenes x 7 methods -- 8100 runs
+  of the default emcee, 7200 of each other emcee variant, 8100 Laplace and
+  imaging runs, 1200 exact-grid runs -- at the sampler's step cap of 20000;
+  emcee dominates, so this is a many-CPU-hour job (``--estimate`` projects it).
+
+--ks / --groups / --methods / --trials / --max-steps restrict a run.  Before
+it starts, a run prints its plan (cells x scenes x methods) and the CPU it is
+expected to take, projected from the CPU per run of earlier results in --out
+(:mod:`_calmap_cost`); ``--estimate`` prints that and stops.  Outputs in --out:
+calibration_map-<mode>.png, .csv and .txt, and the studies' checkpoints and
+NetCDF files.
 """
 
 from __future__ import annotations
@@ -50,12 +63,13 @@ from scipy import stats  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _calmap import METHODS, calmap_trial  # noqa: E402
+from _calmap_cost import estimate_text, measured_cpu, plan  # noqa: E402
 from _calmap_plot import plot_map  # noqa: E402
 from _study_cli import parser, study, table  # noqa: E402
 
 from olsbayes._io import write_text_atomic  # noqa: E402
 
-__all__ = ["main", "groups", "summarise", "cell_state"]
+__all__ = ["main", "groups", "summarise", "cell_state", "reference_table"]
 
 #: Per mode: Ks of the ring, separations, SNRs, trials per cell, emcee step cap.
 MODES = {
@@ -179,9 +193,44 @@ def print_table(rows: list[dict]) -> str:
     return table(head, body, digits=2)
 
 
+def _mode_help(name: str) -> str:
+    """--help of a mode: its grid's cells x scenes x methods, counted from :data:`MODES`."""
+    mode = MODES[name]
+    rows = plan(groups(mode), METHODS, list(METHODS), mode["n"])
+    cells = max(sum(r["cells"] for r in rows if r["method"] == m) for m in METHODS)
+    emcee = sum(r["runs"] for r in rows if r["method"].startswith("emcee"))
+    return (f"the {name} grid: {cells} cells x {mode['n']} scenes per cell x {len(METHODS)} "
+            f"methods ({emcee} emcee runs, capped at {mode['max_steps']} steps)")
+
+
+def reference_table(rows: list[dict]) -> str:
+    """Per (group, method): cells calibrated / failing / undecided, the worst coverage
+    (the 50 % or 90 % coverage furthest from nominal, over cells with an answer) and
+    the failing cells as ``x/snr``."""
+    out = []
+    for key in dict.fromkeys((r["group"], r["method"]) for r in rows):
+        cells = [r for r in rows if (r["group"], r["method"]) == key and r["state"]]
+        if not cells:
+            continue
+        count = {s: sum(r["state"] == s for r in cells) for s in
+                 ("calibrated", "fails", "undecided")}
+        devs = [(abs(r[f"cov{q}"] - q / 100), r[f"cov{q}"], q) for r in cells
+                for q in (50, 90) if np.isfinite(r[f"cov{q}"])]
+        worst = max(devs) if devs else (np.nan, np.nan, 90)
+        failing = " ".join(f"{r['x']:g}/{r['snr']:g}" for r in cells if r["state"] == "fails")
+        out.append([*key, len(cells), count["calibrated"], count["fails"],
+                    count["undecided"], f"{worst[1]:.2f} ({worst[2]} %)", failing or "-"])
+    head = ["group", "method", "cells", "calibrated", "fails", "undecided", "worst cov",
+            "failing cells (x/snr)"]
+    return table(head, out)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = parser("calibration_map", __doc__)
-    ap.add_argument("--medium", action="store_true", help="a mid-size grid (16 scenes/cell)")
+    ap = parser("calibration_map", __doc__, full_help=_mode_help("full"))
+    ap.add_argument("--medium", action="store_true", help=_mode_help("medium"))
+    ap.add_argument("--estimate", action="store_true",
+                    help="print the run's plan and expected CPU (from earlier results in "
+                    "--out) and stop")
     ap.add_argument("--ks", type=int, nargs="*", default=None, help="only these K")
     ap.add_argument("--groups", nargs="*", default=None,
                     help="only these groups, e.g. ring-k4-antipodal sphere-k2")
@@ -194,19 +243,24 @@ def main(argv: list[str] | None = None) -> int:
     mode = MODES[name]
     args.full = name != "quick"  # checkpoints named per mode below
     n = args.trials or mode["n"]
+    selected = [g for g in groups(mode, tuple(args.ks or ()))
+                if not args.groups or g[0] in args.groups]
+    cap = args.max_steps or mode["max_steps"]
+    print(estimate_text(plan(selected, METHODS, args.methods, n), measured_cpu(args.out), cap,
+                        name, n), flush=True)
+    if args.estimate:
+        return 0
     results = {}
     # a group's seed depends on its place among all groups of the mode only, so a run
     # restricted with --ks / --groups sees (and resumes) the same scenes
     offsets = {t: 1000 * g for g, (t, _, _) in enumerate(groups(mode))}
-    for tag, grid, fixed in groups(mode, tuple(args.ks or ())):
-        if args.groups and tag not in args.groups:
-            continue
+    for tag, grid, fixed in selected:
         for method in args.methods:
-            fx = {**fixed, "method": method, "max_steps": args.max_steps or mode["max_steps"]}
+            fx = {**fixed, "method": method, "max_steps": cap}
             results[(tag, method)] = study(args, f"{name}-{tag}-{method}", calmap_trial, grid,
                                            n, fixed=fx, seed_offset=offsets[tag], chunk_size=1)
     rows = summarise(results)
-    text = print_table(rows)
+    text = print_table(rows) + "\n\n" + reference_table(rows)
     print(text)
     write_text_atomic(args.out / f"calibration_map-{name}.txt", text + "\n")
     keys = list(dict.fromkeys(k for r in rows for k in r))

@@ -14,6 +14,7 @@ __all__ = [
     "ConfigError",
     "OlsBayesWarning",
     "ResolutionWarning",
+    "NearResolutionWarning",
     "KinkWarning",
     "ConvergenceWarning",
     "EvidenceWarning",
@@ -42,6 +43,15 @@ class OlsBayesWarning(UserWarning):
 
 class ResolutionWarning(OlsBayesWarning):
     """Sources closer than the array can resolve: the Fisher matrix is singular."""
+
+
+class NearResolutionWarning(ResolutionWarning):
+    """Sources near the resolution limit, or a weak source: Gaussian errors do not hold.
+
+    The Fisher matrix is regular, but the posterior is not one Gaussian (flat
+    valleys, rival optima, a bound at zero) and Fisher (CRLB) intervals cover the
+    truth far less often than stated; see :mod:`olsbayes.resolution`.
+    """
 
 
 class KinkWarning(OlsBayesWarning):

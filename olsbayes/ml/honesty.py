@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import ConvergenceWarning, ResolutionWarning
 from ..model import Model
+from ..resolution import warn_gaussian_doubts
 
 __all__ = ["warn_honesty", "gof_pvalues", "GOF_ALPHA"]
 
@@ -103,3 +104,4 @@ def warn_honesty(model: Model, x: np.ndarray, ll: np.ndarray, cov: np.ndarray,
     """
     _warn_std(model, x, cov, method)
     _warn_fit(model, ll, x.shape[-1], method)
+    warn_gaussian_doubts(model, x, cov, method, stacklevel=4)

@@ -208,6 +208,8 @@ def find_modes(model, data: np.ndarray, prior, centre: np.ndarray, options: Mode
 
     ``centre`` (P,) is the ML point in model parameters (no noise sigma); the
     optima have their sources matched to it.  Deterministic (no randomness).
+    When no optimum lies inside the prior's support (e.g. a merged pair brighter
+    than the intensity bound) the centre alone is returned, one mode.
     """
     from ..bounds import bound_covariance
     from ..exchange import match_sources
@@ -228,6 +230,9 @@ def find_modes(model, data: np.ndarray, prior, centre: np.ndarray, options: Mode
                 frontier.append(optima[i])
         if not frontier:
             break
+    if not kept:  # no optimum inside the prior's support: the centre alone, one mode
+        x = np.asarray(centre, dtype=float)[None, :]
+        return x, _log_post(model, data, prior, x)
     x = match_sources(model, np.array(kept), centre)
     lp = _log_post(model, data, prior, x)
     keep = np.argsort(-lp)

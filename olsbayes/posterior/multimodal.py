@@ -100,13 +100,34 @@ def mode_evidence(logpost, z: np.ndarray, n_draws: int, gen: np.random.Generator
     mean = z.mean(axis=0)
     cov = np.cov(z, rowvar=False).reshape(z.shape[1], z.shape[1])
     cov = cov + np.diag(np.maximum(1e-12 * np.diag(cov), 1e-300))
-    q = stats.multivariate_t(loc=mean, shape=cov, df=5.0, seed=gen)
-    draws = q.rvs(size=n_draws).reshape(n_draws, -1)
-    log_w = np.asarray(logpost(draws), dtype=float) - q.logpdf(draws)
+    try:
+        q = stats.multivariate_t(loc=mean, shape=cov, df=5.0, seed=gen)
+        draws = q.rvs(size=n_draws).reshape(n_draws, -1)
+        log_q = q.logpdf(draws)
+    except np.linalg.LinAlgError:  # scales too far apart, or draws on a lower-dim set
+        draws, log_q = _scaled_t(mean, cov, n_draws, gen)
+    log_w = np.asarray(logpost(draws), dtype=float) - log_q
     log_w = np.where(np.isfinite(log_w), log_w, -np.inf)
     log_mean = float(logsumexp(log_w) - np.log(n_draws))
     w = np.exp(log_w - log_mean)
     return log_mean, float(np.std(w) / np.sqrt(n_draws))
+
+
+def _scaled_t(mean: np.ndarray, cov: np.ndarray, n_draws: int, gen: np.random.Generator
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Draws (n, P) of the Student-t proposal built on the correlation matrix, and log q.
+
+    Each coordinate is scaled by its sd and the correlation matrix gets a ridge of
+    1e-6, so the proposal exists when the covariance is numerically singular;
+    log q includes the Jacobian of the scaling.
+    """
+    from scipy import stats
+
+    sd = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sd, sd) + 1e-6 * np.eye(sd.size)
+    q = stats.multivariate_t(loc=np.zeros(sd.size), shape=corr, df=5.0, seed=gen)
+    u = q.rvs(size=n_draws).reshape(n_draws, -1)
+    return mean + u * sd, q.logpdf(u) - float(np.sum(np.log(sd)))
 
 
 def pool_labels(weights: np.ndarray, n_draws: int, n_walkers: int,

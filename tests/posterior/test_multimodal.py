@@ -185,3 +185,38 @@ def test_ml_fit_warns_about_a_mirrored_optimum(scene4):
     with warnings.catch_warnings():
         warnings.simplefilter("error", AntipodalWarning)
         fit_ml(fig3, fig3_data, 2)
+
+
+def test_mode_search_with_no_optimum_inside_the_prior_returns_the_centre():
+    """Every optimum brighter than the prior's intensity bound: one mode, the centre,
+    and the automatic choice keeps one ensemble (no crash on an empty mode list)."""
+    from olsbayes.posterior._modal import mode_plan
+
+    model = Model(Ring(30), sigma=1e-2)
+    truth = np.array([0.3, 1.0, 0.3 + np.pi - 0.1, 1.2])  # a near-antipodal pair
+    data = model.simulate(truth, rng=0)
+    prior = default_priors(model, 2, i_max=0.5)  # both intensities above the bound
+    modes, lp = find_modes(model, data, prior, truth, ModeOptions())
+    np.testing.assert_array_equal(modes, truth[None, :])
+    assert lp.shape == (1,) and lp[0] == -np.inf
+    assert mode_plan(model, data, prior, truth, SamplerOptions()) is None
+
+
+def test_mode_evidence_survives_scales_far_apart():
+    """Draws whose sds span 7 decades (a numerically singular covariance for the
+    Student-t proposal): the scaled proposal gives log Z of a normalised Gaussian, 0."""
+    from scipy import stats
+
+    from olsbayes.posterior.multimodal import mode_evidence
+
+    sd = np.array([1e-7, 1.0, 0.5])
+    rng = np.random.default_rng(4)
+    z = rng.standard_normal((400, 3)) * sd
+    with pytest.raises(np.linalg.LinAlgError):  # what the direct proposal meets
+        stats.multivariate_t(loc=z.mean(0), shape=np.cov(z, rowvar=False), df=5.0)
+
+    def logpost(x):
+        return np.sum(stats.norm.logpdf(x / sd) - np.log(sd), axis=-1)
+
+    log_z, se = mode_evidence(logpost, z, 4000, rng)
+    assert abs(log_z) < 4 * se + 0.02 and se < 0.05

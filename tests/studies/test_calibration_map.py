@@ -11,7 +11,15 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "analyses"))
 
 from _calmap import METHODS, calmap_trial, u_from_draws  # noqa: E402
-from calibration_map import MODES, cell_state, groups, sbc_p, summarise  # noqa: E402
+from _calmap_cost import estimate_text, plan  # noqa: E402
+from calibration_map import (  # noqa: E402
+    MODES,
+    cell_state,
+    groups,
+    reference_table,
+    sbc_p,
+    summarise,
+)
 
 from olsbayes import run_study  # noqa: E402
 
@@ -112,3 +120,34 @@ def test_bad_cell_refused_before_work(bad):
     fixed = {"geometry": "ring", "n_sources": 1, "snr": 100.0, "method": "laplace", **bad}
     with pytest.raises(InputError):
         run_study(calmap_trial, {}, 1, fixed=fixed, executor="serial", progress=False)
+
+
+def test_plan_counts_cells_scenes_and_methods_of_each_mode():
+    rows = plan(groups(MODES["full"]), METHODS, list(METHODS), 100)
+    cells = {m: sum(r["cells"] for r in rows if r["method"] == m) for m in METHODS}
+    assert cells["emcee"] == cells["laplace"] == 81  # every cell
+    assert cells["exact"] == 12  # rings, K <= 2, SNR <= 300: 1 x 2 + 5 x 2
+    assert sum(r["runs"] for r in rows if r["method"] == "emcee") == 8100
+    medium = plan(groups(MODES["medium"]), METHODS, ["emcee"], 16)
+    assert sum(r["cells"] for r in medium) == 50
+
+
+def test_estimate_scales_measured_cpu_per_run_and_flags_gaps():
+    rows = plan(groups(MODES["quick"], (2,)), METHODS, ["emcee", "laplace"], 6)
+    runs = {m: sum(r["runs"] for r in rows if r["method"] == m) for m in ("emcee", "laplace")}
+    text = estimate_text(rows, {("emcee", 2, 3000): (3.6, 10)}, 3000, "quick", 6)
+    assert f"{runs['emcee'] * 3.6 / 3600:.2f} CPU-h" in text
+    assert "laplace" in text and "CPU unknown (not measured)" in text
+    lower = estimate_text(rows, {("emcee", 2, 3000): (3.6, 10)}, 20000, "quick", 6)
+    assert "a lower bound" in lower  # measured under a smaller step cap
+
+
+def test_reference_table_counts_states_and_names_failing_cells():
+    def row(x, snr, state, c50, c90):
+        return dict(group="ring-k2", method="laplace", x=x, snr=snr, state=state,
+                    cov50=c50, cov90=c90)
+    rows = [row(1.0, 100.0, "fails", 0.04, 0.06), row(5.0, 100.0, "calibrated", 0.5, 0.9),
+            row(2.0, 10.0, "undecided", 0.44, 0.81), row(3.0, 10.0, "", np.nan, np.nan)]
+    line = reference_table(rows).splitlines()[2].split()
+    assert line[:6] == ["ring-k2", "laplace", "3", "1", "1", "1"]  # the n/a cell not counted
+    assert line[6:] == ["0.06", "(90", "%)", "1/100"]  # 0.84 below 0.9 is the worst
