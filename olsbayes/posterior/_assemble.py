@@ -99,7 +99,8 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     prior = logpost.prior
     chain = sampler.get_chain()  # (steps, W, P) sampler coordinates
     n_steps = chain.shape[0]
-    tau = np.asarray(sampler.get_autocorr_time(tol=0), dtype=float)
+    with np.errstate(invalid="ignore"):  # a walker that never moved: NaN tau, not a warning
+        tau = np.asarray(sampler.get_autocorr_time(tol=0), dtype=float)
     keep, n_burn, thin = _kept_steps(tau, n_steps, options)
     moved = np.any(chain[keep] != chain[np.maximum(keep - 1, 0)], axis=-1)
     moved[keep == 0] = True
