@@ -25,7 +25,9 @@ Printed per row: largest R-hat, smallest bulk and tail ESS over the
 intensities (arviz, rank-normalised), CPU seconds of the ``image`` call,
 and "met"/"not met" for the goals R-hat <= 1.01 and ESS >= 400.  A last table
 times the default ``image(model, data, directions)`` call (prior "bounded",
-i_max from the readings) and its mode-only path against the 0.5 s CPU goal.
+i_max from the readings; the convergence-driven run) and its mode-only path
+against the 0.5 s CPU goal, with the draws per chain it kept and its R-hat / ESS
+goals.
 Then the coverage table: bounded prior (``i_max = 1``), truths drawn from Uniform(0,
 1) on the 8-source scene of ``benchmarks/imaging.py`` (sigma = 0.3, where its chains
 mix), 90 % HPD intervals pooled over sources and draws, with the binomial standard
@@ -108,6 +110,16 @@ def _met(ok: bool) -> str:
     return "met" if ok else "not met"
 
 
+def _draws(res) -> int:
+    return 0 if res.samples is None else int(res.samples.shape[1])
+
+
+def _goals(res, rhat, bulk, tail) -> dict:
+    if res.samples is None:  # mode only: nothing to mix
+        return dict(rhat_goal="-", ess_goal="-")
+    return dict(rhat_goal=_met(rhat <= 1.01), ess_goal=_met(min(bulk, tail) >= 400))
+
+
 def default_call_rows(seed, repeats=3):
     """CPU of ``image(model, data, directions)`` (all defaults) and of its mode-only path."""
     rows = []
@@ -124,9 +136,9 @@ def default_call_rows(seed, repeats=3):
             cpu = float(np.median(cpus))
             rhat, bulk, tail = (_diagnostics(res.samples) if res.samples is not None
                                 else (float("nan"),) * 3)
-            rows.append(dict(sensors=sensors, call=label, cpu=cpu, goal_cpu=0.5,
-                             cpu_goal=_met(cpu <= 0.5), rhat=rhat, ess_bulk=bulk,
-                             ess_tail=tail))
+            rows.append(dict(sensors=sensors, call=label, draws=_draws(res), cpu=cpu,
+                             goal_cpu=0.5, cpu_goal=_met(cpu <= 0.5), rhat=rhat,
+                             ess_bulk=bulk, ess_tail=tail, **_goals(res, rhat, bulk, tail)))
     return rows
 
 

@@ -131,7 +131,9 @@ def box_gibbs(
     block : float
         Pilot-sd threshold of the loose block (intensity units); 0: no block.
     scale : float
-        The prior's intensity scale (the block surrogate's size).
+        Intensity scale of the posterior (the block surrogate's size): the
+        prior's scale, or the mode's largest intensity under a bound derived
+        from the readings.
     rule : ConvergenceRule, optional
         Needed when ``n_samples`` is None.
     step : callable, optional

@@ -43,7 +43,7 @@ from .design import Design, analyse_design, check_directions, design_matrix
 from .gaussian import gaussian_posterior
 from .neighbours import neighbour_groups, neighbour_pairs
 from .options import ImageOptions
-from .priors import Gaussian, ImagingPrior, Sparse, TwoLevel, as_prior, with_data_bound
+from .priors import Bounded, Gaussian, ImagingPrior, Sparse, TwoLevel, as_prior, with_data_bound
 from .result import ImageResult, hpd_interval, split_rhat
 from .sparse import gibbs_intensities
 from .truncated import sample_truncated_gaussian
@@ -123,6 +123,7 @@ def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
            opts: ImageOptions, gen: np.random.Generator, progress: bool) -> ImageResult:
     """:func:`image` on checked inputs."""
     a = design_matrix(model, loc)
+    derived = isinstance(prior, Bounded) and prior.i_max is None  # a bound from the readings
     prior = with_data_bound(prior, a, y, model.sigma)
     design = analyse_design(a, loc, model.sigma, prior.scale)
     _warn_null_space(design, opts.null_warn)
@@ -140,7 +141,8 @@ def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
                            sd=nan, lower=nan, upper=nan, level=opts.level, design=design,
                            rhat=float("nan"), sampler="mode-only", i_max=_i_max(prior),
                            at_bound=at)
-    return _sampled(model, loc, a, y, mode, design, prior, opts, gen, progress)
+    scale = min(prior.scale, _typical(mode)) if derived else prior.scale
+    return _sampled(model, loc, a, y, mode, design, prior, scale, opts, gen, progress)
 
 
 def _i_max(prior: ImagingPrior) -> float | None:
@@ -232,9 +234,15 @@ def _two_level(model, loc, a, y, mode, design, prior, opts, gen, progress):
                        i_max=float(i_max))
 
 
-def _sampled(model, loc, a, y, mode, design, prior, opts, gen, progress):
-    """Draws of the box / spike-and-slab posterior from chains started around the mode."""
-    hi, scale, sigma = prior.upper, prior.scale, model.sigma
+def _sampled(model, loc, a, y, mode, design, prior, scale, opts, gen, progress):
+    """Draws of the box / spike-and-slab posterior from chains started around the mode.
+
+    ``scale`` sizes the starts' jitter and the Gibbs chains' block moves: the
+    prior's scale, or for a bound derived from the readings the typical
+    intensity of the mode (:func:`_typical`).  Exact HMC keeps the prior's
+    scale: it decides there whether the design needs a ridge at all.
+    """
+    hi, sigma = prior.upper, model.sigma
     x0 = _starts(mode, opts.n_chains, hi, scale, gen)
     acc, run = 1.0, None
     total = None if opts.n_samples is None else opts.n_burn + opts.n_samples
@@ -243,10 +251,10 @@ def _sampled(model, loc, a, y, mode, design, prior, opts, gen, progress):
         if isinstance(prior, Sparse):
             draws = _sparse_gibbs(model, loc, a, y, x0, prior, opts, gen, bar.update)
         elif opts.sampler == "gibbs":
-            run = _box_gibbs(model, loc, a, y, x0, prior, opts, gen, bar)
+            run = _box_gibbs(model, loc, a, y, x0, hi, scale, opts, gen, bar)
             draws, acc = run.samples, run.acceptance
         else:
-            draws, acc = _hmc(a, y, sigma, hi, scale, x0, opts.n_samples, opts.n_burn, gen,
+            draws, acc = _hmc(a, y, sigma, hi, prior.scale, x0, opts.n_samples, opts.n_burn, gen,
                               design, bar.update)
     if run is not None and run.converged is False:
         d = run.diagnostics
@@ -269,16 +277,31 @@ def _sparse_gibbs(model, loc, a, y, x0, prior, opts, gen, step):
     return run.samples
 
 
-def _box_gibbs(model, loc, a, y, x0, prior, opts, gen, bar):
+def _box_gibbs(model, loc, a, y, x0, hi, scale, opts, gen, bar):
     windows = None
     if opts.window and a.shape[1] > 1:
         windows = window_moves(a, neighbour_groups(model, loc, opts.window), model.sigma)
     rule = None if opts.n_samples is not None else ConvergenceRule(
         opts.rhat_max, opts.ess_min, opts.max_samples)
-    return box_gibbs(a, y, model.sigma, prior.upper, x0, rng=gen, n_samples=opts.n_samples,
+    return box_gibbs(a, y, model.sigma, hi, x0, rng=gen, n_samples=opts.n_samples,
                      n_burn=opts.n_burn, pairs=neighbour_pairs(model, loc, opts.neighbours),
-                     windows=windows, block=opts.block * prior.scale, scale=prior.scale,
+                     windows=windows, block=opts.block * scale, scale=scale,
                      rule=rule, step=bar.update, status=bar.set_postfix_str)
+
+
+def _typical(mode):
+    """Typical intensity for sampling under a bound derived from the readings.
+
+    That bound (:func:`~olsbayes.imaging.priors.data_bound`) is a loose ceiling,
+    twice the largest intensity any direction's readings allow: sized by it, the
+    starts' jitter lands far out along the design's null directions and the
+    block surrogate (:mod:`olsbayes.imaging.chains`) is nearly flat across the
+    box, so its trajectories cross the whole box.  The largest intensity of the
+    bounded least-squares mode is on the scale the data support (an all-zero
+    mode gives inf: the bound's own scale is kept).
+    """
+    top = float(np.max(mode, initial=0.0))
+    return top if top > 0 else np.inf
 
 
 def _starts(mode, n_chains, hi, scale, gen):

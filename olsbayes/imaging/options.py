@@ -115,10 +115,11 @@ class ImageOptions:
     block : float or None
         Box priors with Gibbs: the intensities whose sd over the pilot (the
         first half of the burn-in) exceeds ``block * scale`` (the prior's
-        scale) form a block that every sweep also moves jointly by one
-        exact-HMC trajectory (:mod:`olsbayes.imaging.block`): the wide,
-        non-local directions of an ill-posed design.  >= 0; 0 disables;
-        default 0.01.
+        scale; for ``Bounded`` with the bound derived from the readings, the
+        largest intensity of the mode, if smaller) form a block that every
+        sweep also moves jointly by one exact-HMC trajectory
+        (:mod:`olsbayes.imaging.block`): the wide, non-local directions of an
+        ill-posed design.  >= 0; 0 disables; default 0.01.
     ess_min : float or None
         The convergence-driven run stops when every intensity has bulk and
         tail ESS >= ``ess_min`` and rank-normalised split R-hat <= ``rhat_max``

@@ -124,6 +124,26 @@ def test_the_default_run_stops_when_converged():
     assert d["rhat"] <= 1.01 and min(d["ess_bulk"], d["ess_tail"]) >= 100
 
 
+def test_the_bound_from_the_readings_keeps_the_posterior_exact():
+    """Prior "bounded" without i_max: the bound comes from the readings (several times
+    the intensities), the chains' jitter and block surrogate from the mode's largest
+    intensity.  Moments of the 2-D box-truncated Gaussian on [0, i_max] within 4
+    batch-means standard errors (20 batches of the 4 x 1500 draws)."""
+    model, y, dirs = _ring()
+    res = ob.imaging.image(model, y, dirs, "bounded", rng=7, progress=False,
+                           options=ImageOptions(n_samples=1500, n_burn=40))
+    assert res.i_max > 4 * res.mode.max()  # the derived bound is a loose ceiling
+    assert 0.5 < res.acceptance < 1.0  # block moves were made, most accepted
+    d = res.samples
+    f = np.stack([d[..., 0], d[..., 1], d[..., 0] ** 2, d[..., 1] ** 2, d[..., 0] * d[..., 1]],
+                 axis=-1)
+    batches = f.reshape(4, 20, 75, 5).mean(axis=2).reshape(80, 5)
+    est, se = batches.mean(axis=0), batches.std(axis=0, ddof=1) / np.sqrt(80)
+    a = ob.imaging.design_matrix(model, dirs)
+    mean, second = _exact_moments(a, y, model.sigma, res.i_max)
+    assert np.all(np.abs(est - np.concatenate([mean, second])) < 4 * se + 1e-12)
+
+
 def test_the_run_warns_when_it_hits_its_cap():
     model, y, dirs = _ring()
     opts = ImageOptions(ess_min=1e6, max_samples=150, n_chains=2)
