@@ -282,14 +282,14 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
         if not isinstance(scheduler, str) or not scheduler:
             raise InputError(f"scheduler must be an address such as 'tcp://host:8786'; "
                              f"got {_short(scheduler)}")
-        try:
-            client = Client(scheduler, timeout="20s")
+        try:  # not the process's default client: a failed start must leave no global behind
+            client = Client(scheduler, timeout="20s", set_as_default=False)
         except (OSError, ValueError, TypeError) as exc:  # unreachable, or not an address
             raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
         return _dask_backend(client, client.close)
     cluster = LocalCluster(n_workers=_local_workers(workers), threads_per_worker=1,
                            processes=True, dashboard_address=":0")
-    client = Client(cluster)
+    client = Client(cluster, set_as_default=False)
 
     def closer() -> None:
         client.close()
