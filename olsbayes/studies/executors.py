@@ -207,7 +207,8 @@ class Backend:
         elif self._kind == "dask":
             from distributed import wait
 
-            done = wait(pending, return_when="FIRST_COMPLETED").done
+            with pending[0].client.as_current():  # the futures' client, default or not
+                done = wait(pending, return_when="FIRST_COMPLETED").done
         else:  # serial or foreign futures: in submission order
             return [pending[0]], pending[1:]
         ids = {id(f) for f in done}

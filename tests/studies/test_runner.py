@@ -82,12 +82,14 @@ def test_same_numbers_on_every_executor_worker_count_and_chunking():
         assert pool.submit(int, 1).result() == 1  # a user's executor is left running
     assert threads.identical(ref)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=":0") as cluster, Client(cluster) as client:
-        dask = run_study(noise_check, GRID, 24, executor=client, rng=7, chunk_size=7,
-                         progress=False)
+                      dashboard_address=":0") as cluster:
+        with Client(cluster) as client:
+            dask = run_study(noise_check, GRID, 24, executor=client, rng=7, chunk_size=7,
+                             progress=False)
+            assert client.submit(int, 2).result() == 2  # the user's client is left open
+        # no client of the user's around: the runner's own client is not the default one
         by_address = run_study(noise_check, GRID, 24, executor="dask", rng=7,
                                scheduler=cluster.scheduler_address, progress=False)
-        assert client.submit(int, 2).result() == 2  # the user's client is left open
     assert dask.identical(ref) and by_address.identical(ref)
     # the vectorised form draws the same streams: same scenes and noise
     batch = run_study(noise_check_batch, GRID, 24, executor="serial", rng=7, chunk_size=9,
