@@ -101,6 +101,9 @@ def estimate_text(rows: list[dict], measured: dict, max_steps: int, mode: str, n
             total += cpu
         elif runs:
             unknown = True
+    if unknown and total == 0:
+        lines.append("  expected total unknown: no method was measured in this folder yet")
+        return "\n".join(lines)
     tail = " + the methods never measured in this folder" if unknown else ""
     lines.append(f"  expected total ~{total / 3600:.2f} CPU-h{tail} (from the mean CPU per "
                  "run of earlier results in --out; divide by the workers for wall time)")
