@@ -188,7 +188,7 @@ def imaging(prior: object) -> Callable:
         k = model.n_sources_of(truth)
         blocks = truth.reshape(k, -1)
         loc = blocks[:, 0] if model.kind == "angle" else blocks[:, :-1]
-        res = ob.image(model, data, loc, prior, rng=rng)
+        res = ob.image(model, data, loc, prior, rng=rng, progress=False)
         u = np.full(len(truth), np.nan)
         if res.samples is None:  # closed form (Gaussian prior)
             u[model.n_loc::model.n_loc + 1] = stats.norm.cdf(blocks[:, -1], res.mean, res.sd)
