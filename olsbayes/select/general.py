@@ -150,34 +150,11 @@ def nested_work_general(model: Model, data: np.ndarray, work: KWork, prior: Scen
 def _prior_of(model: Model, data: np.ndarray, priors: object, i_max: float | None,
               frames: bool) -> Callable[[int], ScenePrior]:
     """``K -> ScenePrior`` with the model's extras (default priors, or the user's, checked)."""
-    from .._validation import positive_float
-    from ..errors import InputError
     from ..posterior._general import check_prior_extras
-    from ..priors import default_priors
+    from .scene_priors import prior_factory
 
-    if priors is None:
-        bound = (default_priors(model, 1, data=data, frames=frames).intensity.upper
-                 if i_max is None else positive_float("i_max", i_max))
-        return lambda k: default_priors(model, k, i_max=bound)
-    if i_max is not None:
-        raise InputError("give either priors= or i_max=, not both")
-    get = priors.__getitem__ if hasattr(priors, "__getitem__") else priors
-    if not callable(get):
-        raise InputError("priors must be None, a mapping {K: ScenePrior} or a callable "
-                         f"K -> ScenePrior; got {type(priors).__name__}")
-
-    def factory(k: int) -> ScenePrior:
-        try:
-            p = get(k)
-        except KeyError:
-            raise InputError(f"priors has no entry for K = {k}") from None
-        if not isinstance(p, ScenePrior) or p.n_sources != k or p.kind != model.kind:
-            raise InputError(f"priors for K = {k} must be a ScenePrior of {k} {model.kind!r} "
-                             f"sources; got {p!r}")
-        check_prior_extras(model, p)
-        return p
-
-    return factory
+    return prior_factory(model, data, priors, i_max, frames=frames,
+                         check=lambda p: check_prior_extras(model, p))
 
 
 def select_general(model: Model, data: object, k_max: int, *, priors: object,

@@ -20,17 +20,16 @@ prefer more sources, the simpler scene is reported (and a note says so).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
 
 import numpy as np
 
 from .._budget import check_memory
 from .._progress import progress_bar
-from .._validation import as_rng, integer, positive_float
+from .._validation import as_rng, integer
 from ..errors import InputError
 from ..measurement import is_plain
 from ..model import Model
-from ..priors import CountPrior, ScenePrior, UniformCount, default_priors
+from ..priors import CountPrior, ScenePrior, UniformCount
 from .decide import finish, next_escalation
 from .engine import (
     KWork,
@@ -46,6 +45,7 @@ from .mixture import MAX_SOURCES
 from .nested_error import scaled_maxcall
 from .options import SelectOptions
 from .result import SelectionResult
+from .scene_priors import prior_factory
 
 __all__ = ["select_k", "METHODS", "K_MAX_LIMIT", "RIDGE_GAIN"]
 
@@ -60,44 +60,9 @@ K_MAX_LIMIT = 8
 RIDGE_GAIN = 10.0
 
 
-def _prior_factory(model: Model, data: np.ndarray, priors: object, i_max: float | None
-                   ) -> Callable[[int], ScenePrior]:
-    """``K -> ScenePrior`` from ``priors``.
-
-    ``priors`` None: default priors with ``i_max`` or a data-derived intensity bound.
-    A prior of the wrong K, kind or with sigma inferred is refused when the factory is
-    called.
-    """
-    if priors is None:
-        # one data-derived bound shared by every K (plates: over the default box)
-        bound = default_priors(model, 1, data=data).intensity.upper if i_max is None else (
-            positive_float("i_max", i_max))
-        return lambda k: default_priors(model, k, i_max=bound)
-    if i_max is not None:
-        raise InputError("give either priors= or i_max=, not both")
-    if isinstance(priors, Mapping):
-        get = priors.__getitem__
-    elif callable(priors):
-        get = priors
-    else:
-        raise InputError(
-            "priors must be None, a mapping {K: ScenePrior} or a callable K -> ScenePrior; "
-            f"got {type(priors).__name__}"
-        )
-
-    def factory(k: int):
-        try:
-            p = get(k)
-        except KeyError:
-            raise InputError(f"priors has no entry for K = {k}") from None
-        if not isinstance(p, ScenePrior) or p.n_sources != k or p.kind != model.kind:
-            raise InputError(f"priors for K = {k} must be a ScenePrior of {k} {model.kind!r} "
-                             f"sources; got {p!r}")
-        if p.noise is not None:
-            raise InputError("select_k needs sigma known: give ScenePrior(noise=None)")
-        return p
-
-    return factory
+def _sigma_known(prior: ScenePrior) -> None:
+    if prior.noise is not None:
+        raise InputError("select_k needs sigma known: give ScenePrior(noise=None)")
 
 
 def _count_prior(k_prior: object, k_max: int) -> np.ndarray:
@@ -217,7 +182,7 @@ def select_k(
     data, k_max, options = _check(model, data, k_max, method, options)
     if not isinstance(progress, (bool, np.bool_)):
         raise InputError(f"progress must be True or False; got {progress!r}")
-    prior_of = _prior_factory(model, data, priors, i_max)
+    prior_of = prior_factory(model, data, priors, i_max, check=_sigma_known)
     scene_priors = {k: prior_of(k) for k in range(1, k_max + 1)}
     log_pk = _count_prior(k_prior, k_max)
     streams = [s.spawn(3) for s in as_rng(rng).spawn(k_max + 1)]  # fit, nested, importance
