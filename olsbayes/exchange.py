@@ -62,13 +62,18 @@ def pair_costs(a: np.ndarray, b: np.ndarray, periodic: np.ndarray,
     ndarray, shape (..., K, K)
         ``cost[..., i, j]``: source i of ``a`` against source j of ``b``.
     """
-    d = a[..., :, None, :] - b[..., None, :, :]
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     periodic = np.asarray(periodic, dtype=bool)
-    if periodic.any():  # wrap only the periodic columns (np.mod is the costly part)
-        d[..., periodic] = wrap_angle(d[..., periodic])
-    if scale is not None:
-        d = d / scale
-    return np.sum(d * d, axis=-1)
+    out = None
+    for c in range(a.shape[-1]):  # one coordinate at a time: no (..., K, K, c) temporaries
+        d = a[..., :, None, c] - b[..., None, :, c]
+        if periodic[c]:
+            d = wrap_angle(d)
+        if scale is not None:
+            d = d / scale[..., None, :, c]
+        d *= d
+        out = d if out is None else out + d  # summed in coordinate order, as np.sum does
+    return out
 
 
 def best_permutation(cost: np.ndarray) -> np.ndarray:
@@ -86,10 +91,12 @@ def best_permutation(cost: np.ndarray) -> np.ndarray:
     """
     k = cost.shape[-1]
     lead = cost.shape[:-2]
-    if k <= MAX_EXHAUSTIVE:
+    if k <= 2:
         perms = permutations(k)
         total = cost[..., perms, np.arange(k)].sum(axis=-1)  # (..., K!)
         return perms[np.argmin(total, axis=-1)]
+    if k <= MAX_EXHAUSTIVE:
+        return _exhaustive(cost.reshape(-1, k * k), k).reshape(lead + (k,))
     from scipy.optimize import linear_sum_assignment
 
     flat = cost.reshape(-1, k, k)
@@ -98,6 +105,30 @@ def best_permutation(cost: np.ndarray) -> np.ndarray:
         rows, cols = linear_sum_assignment(flat[s])
         out[s, cols] = rows
     return out.reshape(lead + (k,))
+
+
+#: Elements of the (K!, draws) table of permutation totals built at once by :func:`_exhaustive`.
+_TOTALS_CHUNK = 1 << 22
+
+
+def _exhaustive(flat: np.ndarray, k: int) -> np.ndarray:
+    """Best permutation (S, K) of each row of ``flat`` (S, K * K), over all K! of them.
+
+    The totals are summed label by label, ``((c_0 + c_1) + c_2) + ...`` as ``np.sum`` over
+    a short axis does, on cost columns laid out as contiguous rows, in blocks of draws
+    that keep the (K!, block) table of totals small.
+    """
+    perms = permutations(k)
+    cols = perms * k + np.arange(k)  # (K!, K): flat index of cost[perm[j], j]
+    out = np.empty((flat.shape[0], k), dtype=np.int64)
+    step = max(1, _TOTALS_CHUNK // len(perms))
+    for lo in range(0, flat.shape[0], step):
+        rows = np.ascontiguousarray(flat[lo:lo + step].T)  # (K * K, block)
+        total = rows[cols[:, 0]] + rows[cols[:, 1]]
+        for j in range(2, k):
+            total += rows[cols[:, j]]
+        out[lo:lo + step] = perms[np.argmin(total, axis=0)]
+    return out
 
 
 def _blocks(model, x: np.ndarray, k: int) -> np.ndarray:

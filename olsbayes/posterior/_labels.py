@@ -97,7 +97,8 @@ def relabel(
     log_post : ndarray (...,), optional
         Log posterior of each draw; its argmax is the reference draw.
     n_iter : int
-        Reference-update iterations.
+        Most reference-update iterations (fewer when the labels stop changing: the
+        same labels give the same reference, so the rest would repeat them).
     anchor : ndarray (P,) or (K (d + 1),), optional
         A point in the flat layout (the walkers' starting point, the ML estimate
         by default); its sources, in canonical order, are the first reference
@@ -128,8 +129,11 @@ def relabel(
         ref = blocks[best][reference_order(blocks[best], periodic, pivot)]
     _, scale = _mean_scale(blocks, periodic)
     scale = np.broadcast_to(np.maximum(scale.mean(axis=0), 1e-300), (k, w))
+    perm = None
     for _ in range(max(1, n_iter)):
-        perm = best_permutation(pair_costs(blocks, ref, periodic, scale))
+        last, perm = perm, best_permutation(pair_costs(blocks, ref, periodic, scale))
+        if last is not None and np.array_equal(perm, last):
+            break  # the same labels give the same reference: a fixed point
         ordered = np.take_along_axis(blocks, perm[:, :, None], axis=1)
         ref, scale = _mean_scale(ordered, periodic)
         scale = np.maximum(scale, 1e-12 * np.maximum(scale.max(axis=0), 1e-300))
