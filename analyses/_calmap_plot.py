@@ -54,7 +54,13 @@ def plot_map(rows: list[dict], path: Path, mode: str, n: int) -> None:
         for j, g in enumerate(grps):
             ax = axes[i, j]
             sub = [r for r in rows if r["method"] == m and r["group"] == g]
-            _panel(ax, sub, norm, cmap)
+            if sub:
+                _panel(ax, sub, norm, cmap)
+            else:  # a study not run (yet)
+                ax.text(0.5, 0.5, "not run", ha="center", va="center", fontsize=7,
+                        transform=ax.transAxes)
+                ax.set_xticks([])
+                ax.set_yticks([])
             if i == 0:
                 ax.set_title(g, fontsize=8)
             if i == len(methods) - 1:

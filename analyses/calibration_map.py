@@ -45,7 +45,9 @@ grids of :data:`MODES`; cells counted over all groups, methods where they apply)
 --ks / --groups / --methods / --trials / --max-steps restrict a run.  Before
 it starts, a run prints its plan (cells x scenes x methods) and the CPU it is
 expected to take, projected from the CPU per run of earlier results in --out
-(:mod:`_calmap_cost`); ``--estimate`` prints that and stops.  Outputs in --out:
+(:mod:`_calmap_cost`); ``--estimate`` prints that and stops.  ``--report`` runs
+nothing and summarises the (group, method) studies already finished in --out, so
+a long run can be read while it goes on.  Outputs in --out:
 calibration_map-<mode>.png, .csv and .txt, and the studies' checkpoints and
 NetCDF files.
 """
@@ -231,6 +233,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--estimate", action="store_true",
                     help="print the run's plan and expected CPU (from earlier results in "
                     "--out) and stop")
+    ap.add_argument("--report", action="store_true",
+                    help="run nothing: summarise the (group, method) studies already finished "
+                    "in --out (a long run can be read while it goes on)")
     ap.add_argument("--ks", type=int, nargs="*", default=None, help="only these K")
     ap.add_argument("--groups", nargs="*", default=None,
                     help="only these groups, e.g. ring-k4-antipodal sphere-k2")
@@ -246,21 +251,22 @@ def main(argv: list[str] | None = None) -> int:
     selected = [g for g in groups(mode, tuple(args.ks or ()))
                 if not args.groups or g[0] in args.groups]
     cap = args.max_steps or mode["max_steps"]
-    print(estimate_text(plan(selected, METHODS, args.methods, n), measured_cpu(args.out), cap,
-                        name, n), flush=True)
+    if not args.report:
+        print(estimate_text(plan(selected, METHODS, args.methods, n), measured_cpu(args.out),
+                            cap, name, n), flush=True)
     if args.estimate:
         return 0
-    results = {}
-    # a group's seed depends on its place among all groups of the mode only, so a run
-    # restricted with --ks / --groups sees (and resumes) the same scenes
-    offsets = {t: 1000 * g for g, (t, _, _) in enumerate(groups(mode))}
-    for tag, grid, fixed in selected:
-        for method in args.methods:
-            fx = {**fixed, "method": method, "max_steps": cap}
-            results[(tag, method)] = study(args, f"{name}-{tag}-{method}", calmap_trial, grid,
-                                           n, fixed=fx, seed_offset=offsets[tag], chunk_size=1)
+    results = (_finished(args, name, selected) if args.report
+               else _run(args, name, mode, selected, n, cap))
+    if not results:
+        print(f"no finished study of the {name} grid in {args.out}")
+        return 0
     rows = summarise(results)
     text = print_table(rows) + "\n\n" + reference_table(rows)
+    if args.report:
+        total = len(selected) * len(args.methods)
+        text = (f"{len(results)} of {total} (group, method) studies finished; the others "
+                "are left out\n\n" + text)
     print(text)
     write_text_atomic(args.out / f"calibration_map-{name}.txt", text + "\n")
     keys = list(dict.fromkeys(k for r in rows for k in r))
@@ -270,6 +276,35 @@ def main(argv: list[str] | None = None) -> int:
     plot_map(rows, args.out / f"calibration_map-{name}.png", name, n)
     print(f"wrote {args.out / f'calibration_map-{name}.png'}")
     return 0
+
+
+def _run(args, name: str, mode: dict, selected: list, n: int, cap: int) -> dict:
+    """Run (or resume) one study per selected (group, method): ``{(tag, method): dataset}``."""
+    results = {}
+    # a group's seed depends on its place among all groups of the mode only, so a run
+    # restricted with --ks / --groups sees (and resumes) the same scenes
+    offsets = {t: 1000 * g for g, (t, _, _) in enumerate(groups(mode))}
+    for tag, grid, fixed in selected:
+        for method in args.methods:
+            fx = {**fixed, "method": method, "max_steps": cap}
+            results[(tag, method)] = study(args, f"{name}-{tag}-{method}", calmap_trial, grid,
+                                           n, fixed=fx, seed_offset=offsets[tag], chunk_size=1)
+    return results
+
+
+def _finished(args, name: str, selected: list) -> dict:
+    """The finished studies (saved datasets) of the selected (group, method) in --out."""
+    import xarray as xr
+
+    suffix = "full" if args.full else "quick"  # as _study_cli.study names its files
+    results = {}
+    for tag, _, _ in selected:
+        for method in args.methods:
+            path = args.out / f"{name}-{tag}-{method}-{suffix}.nc"
+            if path.is_file():
+                with xr.open_dataset(path) as ds:
+                    results[(tag, method)] = ds.load()
+    return results
 
 
 if __name__ == "__main__":

@@ -151,3 +151,21 @@ def test_reference_table_counts_states_and_names_failing_cells():
     line = reference_table(rows).splitlines()[2].split()
     assert line[:6] == ["ring-k2", "laplace", "3", "1", "1", "1"]  # the n/a cell not counted
     assert line[6:] == ["0.06", "(90", "%)", "1/100"]  # 0.84 below 0.9 is the worst
+
+
+def test_report_summarises_finished_studies_and_runs_nothing(tmp_path, capsys):
+    from calibration_map import main
+
+    assert main(["--report", "--out", str(tmp_path)]) == 0  # nothing finished yet
+    assert "no finished study" in capsys.readouterr().out
+    grid = {"separation": [3.0], "snr": [100.0]}
+    fixed = {"geometry": "ring", "n_sources": 2, "antipodal": -1.0, "max_steps": 200,
+             "method": "laplace"}
+    run_study(calmap_trial, grid, 3, fixed=fixed, executor="serial", rng=5, progress=False,
+              out=tmp_path / "quick-ring-k2-laplace-quick.nc")
+    assert main(["--report", "--out", str(tmp_path), "--methods", "laplace", "emcee"]) == 0
+    text = (tmp_path / "calibration_map-quick.txt").read_text()
+    assert text.startswith(f"1 of {2 * len(groups(MODES['quick']))} (group, method) studies")
+    assert "ring-k2" in text and "emcee" not in text.split("\n", 1)[1]  # only what ran
+    assert (tmp_path / "calibration_map-quick.png").stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.glob("*.ckpt")) == []  # nothing was run
