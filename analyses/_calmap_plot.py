@@ -46,9 +46,11 @@ def plot_map(rows: list[dict], path: Path, mode: str, n: int) -> None:
 
     methods = list(dict.fromkeys(r["method"] for r in rows))
     grps = list(dict.fromkeys(r["group"] for r in rows))
+    widths = [max(2, len({r["x"] for r in rows if r["group"] == g})) for g in grps]
     fig, axes = plt.subplots(len(methods), len(grps), squeeze=False,
-                             figsize=(2.3 * len(grps) + 1.6, 1.55 * len(methods) + 1.2),
-                             gridspec_kw=dict(wspace=0.45, hspace=0.35))
+                             figsize=(0.62 * sum(widths) + 0.5 * len(grps) + 2.0,
+                                      2.0 * len(methods) + 1.2),
+                             gridspec_kw=dict(wspace=0.45, hspace=0.35, width_ratios=widths))
     norm, cmap = TwoSlopeNorm(vmin=-0.9, vcenter=0.0, vmax=0.1), plt.get_cmap("RdBu")
     for i, m in enumerate(methods):
         for j, g in enumerate(grps):
@@ -70,7 +72,7 @@ def plot_map(rows: list[dict], path: Path, mode: str, n: int) -> None:
             if j == 0:
                 ax.set_ylabel(f"{m}\nSNR per source", fontsize=8)
     sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
-    fig.colorbar(sm, ax=axes, shrink=0.6, label="90 % coverage - 0.9")
+    fig.colorbar(sm, ax=axes, shrink=0.6, fraction=0.02, pad=0.015, label="90 % coverage - 0.9")
     fig.suptitle(f"Calibration map ({mode}: {n} scenes per cell)\n\u2713 calibrated "
                  "(SBC p > 0.01, coverage within 0.03), \u2717 fails, ? undecided\n"
                  "text: 90 % coverage", fontsize=8)
