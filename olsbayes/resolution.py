@@ -13,7 +13,13 @@ separation and SNR (``analyses/calibration_map.py``) shows where it is not:
   and 4 alike;
 * a source whose intensity is less than three of its own standard deviations above zero
   (low SNR: the Gaussian reaches the prior's edge at 0 and the direction is
-  barely localised), as for three sources two spacings apart at SNR 10.
+  barely localised), as for three sources two spacings apart at SNR 10;
+* ring sources near antipodal (:mod:`olsbayes.antipodal`: the readings barely
+  tell such a pair from its mirrored configuration): four sources or more with a
+  pair within one sensor spacing of antipodal, or two such pairs at once -- where
+  Fisher intervals covered the truth less often than stated (far less for two
+  pairs).  A single such pair among two or three sources under-covers only a
+  little and is not flagged.
 
 :func:`gaussian_doubts` finds these conditions at a batch of estimates from the
 estimates and their covariances alone; :func:`warn_gaussian_doubts` turns them
@@ -35,13 +41,17 @@ import numpy as np
 
 from .errors import NearResolutionWarning
 
-__all__ = ["gaussian_doubts", "warn_gaussian_doubts", "RESOLUTION_SPACINGS", "WEAK_SDS"]
+__all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "RESOLUTION_SPACINGS",
+           "WEAK_SDS", "ANTIPODAL_DOUBT"]
 
 #: Sources closer than this many sensor spacings are near the resolution limit.
 RESOLUTION_SPACINGS = 1.5
 #: A source whose intensity is below this many of its standard deviations is weak: its
 #: 90 % Gaussian interval nearly reaches zero.
 WEAK_SDS = 3.0
+#: Ring source pairs nearer than this many sensor spacings to antipodal can be in doubt
+#: (:func:`antipodal_doubts`).
+ANTIPODAL_DOUBT = 1.0
 
 
 #: What to do about a pair below the resolution limit (part of the warning).
@@ -103,6 +113,35 @@ def gaussian_doubts(model, x: np.ndarray, cov: np.ndarray) -> dict[str, np.ndarr
     sep = _min_separation(model, x)
     return {"close": finite & (sep < RESOLUTION_SPACINGS), "weak": finite & weak,
             "separation": sep}
+
+
+def antipodal_doubts(model, x: np.ndarray) -> np.ndarray:
+    """Which ring estimates have near-antipodal pairs whose Fisher errors are not calibrated.
+
+    Parameters
+    ----------
+    model : Model
+        Other kinds than a ring (``kind == "angle"``) have no such pairs.
+    x : ndarray (T, P)
+        Estimates in the model's flat layout.
+
+    Returns
+    -------
+    ndarray of bool (T,)
+        Rows with four sources or more and a pair within :data:`ANTIPODAL_DOUBT`
+        sensor spacings of antipodal, or with two such pairs.
+    """
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    t, p = x.shape
+    k = p // (model.n_loc + 1)
+    if model.kind != "angle" or k < 2:
+        return np.zeros(t, dtype=bool)
+    theta = x.reshape(t, k, model.n_loc + 1)[..., 0]
+    i, j = np.triu_indices(k, 1)
+    diff = np.abs(np.angle(np.exp(1j * (theta[:, i] - theta[:, j]))))  # (T, pairs) in [0, pi]
+    gap = (np.pi - diff) / (2.0 * np.pi / model.n_sensors)
+    near = gap < ANTIPODAL_DOUBT
+    return (near.any(axis=1) & (k >= 4)) | (near.sum(axis=1) >= 2)
 
 
 def warn_gaussian_doubts(model, x: np.ndarray, cov: np.ndarray, method: str, *,

@@ -14,7 +14,13 @@ import numpy as np
 import pytest
 
 import olsbayes as ob
-from olsbayes.resolution import RESOLUTION_SPACINGS, WEAK_SDS, gaussian_doubts
+from olsbayes.resolution import (
+    ANTIPODAL_DOUBT,
+    RESOLUTION_SPACINGS,
+    WEAK_SDS,
+    antipodal_doubts,
+    gaussian_doubts,
+)
 
 H = 2 * np.pi / 30  # sensor spacing of the ring of 30
 
@@ -81,3 +87,32 @@ def test_sampling_a_close_pair_from_its_ml_start_warns():
     opts = ob.SamplerOptions(n_steps=200, rhat_max=None)
     with pytest.warns(ob.NearResolutionWarning, match="one source fewer"):
         ob.sample_posterior(model, data, 2, options=opts, rng=2, progress=False)
+
+
+def test_antipodal_doubts_from_the_estimates():
+    """Four sources with a pair within one spacing of antipodal, or two such pairs: doubt."""
+    model = ob.Model(ob.Ring(30), 0.01)
+
+    def row(theta):
+        return np.column_stack([theta, np.ones(len(theta))]).ravel()
+
+    pi = np.pi
+    k4_near = row([0.1, 0.1 + pi - 0.6 * H, 1.4, -2.3])      # one pair 0.6 spacings off
+    k4_far = row([0.1, 0.1 + pi - 1.3 * H, 1.4, -2.3])       # nearest pair 1.3 off
+    assert list(antipodal_doubts(model, np.stack([k4_near, k4_far]))) == [True, False]
+    k2 = row([0.4, 0.4 + pi - 0.6 * H])                        # one pair, two sources
+    k3_two = row([0.4, 0.4 + pi - 0.3 * H, 0.4 + pi + 0.5 * H])  # two pairs share a source
+    assert list(antipodal_doubts(model, np.stack([k2]))) == [False]
+    assert list(antipodal_doubts(model, k3_two[None])) == [True]
+    sphere = ob.Model(ob.Sphere.fibonacci(20), 0.01)
+    assert not antipodal_doubts(sphere, np.array([[0.1, 0.2, 1.0, 0.1 + pi, -0.2, 1.0]])).any()
+    assert ANTIPODAL_DOUBT == 1.0
+
+
+def test_four_sources_with_a_near_antipodal_pair_warn():
+    """fit_ml says that the Fisher errors of such a fit are not to be trusted."""
+    theta = [0.1, 0.1 + np.pi - 0.4 * H, 1.4, -2.3]
+    _, seen = _fit(1e-3, theta, [1.0, 0.8, 1.2, 0.9], 11)
+    antipodal = [w for w in seen if w.category is ob.AntipodalWarning]
+    assert len(antipodal) == 1
+    assert "covered the truth less often than stated" in str(antipodal[0].message)
