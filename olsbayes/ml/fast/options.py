@@ -35,11 +35,13 @@ The defaults, and why:
   nearly equal height differ in several sources at once and the grid search
   alone often stops in one that is not the global optimum; ``distinct_modes``
   from K = 5 on too, for the same reason.
-* ``slide``: the sliding search (:mod:`~olsbayes.ml.fast.slide`) from the 16 best
+* ``slide``: the sliding search (:mod:`~olsbayes.ml.fast.slide`) from the best
   distinct optima found, from K = 5 on: moves of one or two sources to the atoms
   best correlated with the residual reach optima that the scattered starts alone
-  miss, at a cost polynomial in K; from 8 starts it missed the best optimum known
-  in several times as many ring fits at K = 7, 8.
+  miss, at a cost polynomial in K.  The number of optima nearly as high as the
+  best grows fast with K, and so does the share of fits that one sliding path
+  from each of a fixed number of starts leaves short of the best: 16 starts at
+  K = 5, 6, twice as many with each further source up to 64 (K >= 8).
 """
 
 from __future__ import annotations
@@ -190,7 +192,7 @@ class FastOptions:
             "kink_hops": hops,
             "escalate": escalate,
             "scatter": 300 if k >= 5 else 0,
-            "slide": 16 if k >= 5 else 0,
+            "slide": 0 if k < 5 else 16 * 2 ** min(max(k - 6, 0), 2),
         }
         return dataclasses.replace(self, **{name: value for name, value in pick.items()
                                             if getattr(self, name) is None})
