@@ -75,6 +75,8 @@ def test_slide_defaults_and_bad_values():
     ring = ob.Model(ob.Ring(64), 1e-2)
     assert [FastOptions().resolve(ring, k).slide for k in (4, 5, 6, 7, 8, 12)] == [
         0, 16, 16, 32, 64, 64]
+    sphere = ob.Model(ob.Sphere.grid(5, 8), 1e-2)
+    assert [FastOptions().resolve(sphere, k).slide for k in (4, 5, 8)] == [0, 16, 16]
     for field, value in (("slide", -1), ("slide", 65), ("slide", 1.5), ("slide_sweeps", 0)):
         with pytest.raises(InputError, match=field):
             FastOptions(**{field: value})
