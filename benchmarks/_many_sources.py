@@ -5,8 +5,8 @@ fast fit without the sliding search (``FastOptions(slide=0)``, "before"), the tw
 alternating in blocks of data vectors; and for K >= 5 the share of fits reaching
 the best optimum of every fit run on the data vector: both fast fits, an LM run
 from the truth, a long compiled search (``ref_scatter`` scattered starts refined
-by LM and the sliding search from the 64 best distinct optima,
-``FastOptions(scatter=..., slide=64)``) on every scene and the paper's L-BFGS-B
+by LM and the sliding search from the ``ref_slide`` best distinct optima,
+``FastOptions(scatter=..., slide=...)``) on every scene and the paper's L-BFGS-B
 multistart (``ms_starts`` pseudo-random starts) on the first ``ms_trials``
 scenes.  Shares are printed with their binomial standard error and the one-sided
 95 % lower confidence bound (Clopper-Pearson), at 1e-6 nats of the best
@@ -75,7 +75,7 @@ def _point(kind, model, k, sep, args, scenes) -> dict:
     ref = refine_batch(model, data, model.canonical(truth), kinks=True).x
     lls = [t["ll"]["after"], t["ll"]["before"], model.log_likelihood(ref, data)]
     c0 = time.process_time()
-    long_opts = FastOptions(scatter=args.ref_scatter[kind], slide=64)
+    long_opts = FastOptions(scatter=args.ref_scatter[kind], slide=args.ref_slide[kind])
     lls.append(fit_ml(model, data, k, options=long_opts, warn=False).log_likelihood)
     r["long_ms"] = 1e3 * (time.process_time() - c0) / n
     m = min(args.ms_trials, n)
@@ -112,9 +112,9 @@ def part_many(args, say, scenes, exponent) -> list[dict]:
     """Run part 3; ``scenes`` and ``exponent`` are ml_scaling's helpers."""
     say(f"\n3. many sources: median CPU ms per single fit after | before the sliding search "
         f"(interleaved), share reaching the best of both, LM from the truth, a long compiled "
-        f"search ({args.ref_scatter} LM starts, sliding search from 64 optima) and L-BFGS-B "
-        f"multistart ({args.ms_starts} starts, first {args.ms_trials} scenes) (goal: >= 0.99 "
-        f"for K = 5..8)")
+        f"search ({args.ref_scatter} LM starts, sliding search from {args.ref_slide} optima) "
+        f"and L-BFGS-B multistart ({args.ms_starts} starts, first {args.ms_trials} scenes) "
+        f"(goal: >= 0.99 for K = 5..8)")
     rows = []
     cases = (("ring", ob.Model(ob.Ring(64), 1e-2), 20.0),
              ("sphere", ob.Model(ob.Sphere.grid(15, 20), 1e-2), 30.0))

@@ -222,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     a.ms_trials = ms_trials if a.ms_trials is None else a.ms_trials
     a.many_ks = [int(c) for c in a.many_ks]
     a.ref_scatter = {"ring": 3000, "sphere": 1000}
+    a.ref_slide = {"ring": 64, "sphere": 16}
     a.out.mkdir(parents=True, exist_ok=True)
     lines: list[str] = []
 
