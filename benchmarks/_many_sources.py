@@ -4,12 +4,15 @@ Per K: the CPU time per single fit of the default fast fit ("after") and of the
 fast fit without the sliding search (``FastOptions(slide=0)``, "before"), the two
 alternating in blocks of data vectors; and for K >= 5 the share of fits reaching
 the best optimum of every fit run on the data vector: both fast fits, an LM run
-from the truth, a compiled long multistart (``ref_scatter`` scattered starts
-refined by LM, ``FastOptions(scatter=..., slide=0)``) on every scene and the
-paper's L-BFGS-B multistart (``ms_starts`` pseudo-random starts) on the first
-``ms_trials`` scenes.  Shares are printed with their binomial standard error and
-the one-sided 95 % lower confidence bound (Clopper-Pearson), at 1e-6 nats of the
-best log-likelihood (and the default fit's also at 1e-3 nats).
+from the truth, a long compiled search (``ref_scatter`` scattered starts refined
+by LM and the sliding search from the ``ref_slide`` best distinct optima,
+``FastOptions(scatter=..., slide=...)``) on every scene and the paper's L-BFGS-B
+multistart (``ms_starts`` pseudo-random starts) on the first ``ms_trials``
+scenes.  Shares are printed with their binomial standard error and the one-sided
+95 % lower confidence bound (Clopper-Pearson), at 1e-6 nats of the best
+log-likelihood; the default fit's also at 1e-3 and 0.1 nats, with the largest
+shortfall.  The best optimum is the best of the methods run, so every share is an
+upper bound of the share of fits at the global optimum.
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ __all__ = ["part_many"]
 #: as reaching it.
 REACH = 1e-6
 REACH_LOOSE = 1e-3
+#: Shortfall far below the likelihood's resolution (a likelihood ratio of 1.1).
+REACH_NEAR = 0.1
 BEFORE = FastOptions(slide=0)
 
 
@@ -70,7 +75,7 @@ def _point(kind, model, k, sep, args, scenes) -> dict:
     ref = refine_batch(model, data, model.canonical(truth), kinks=True).x
     lls = [t["ll"]["after"], t["ll"]["before"], model.log_likelihood(ref, data)]
     c0 = time.process_time()
-    long_opts = FastOptions(scatter=args.ref_scatter[kind], slide=0)
+    long_opts = FastOptions(scatter=args.ref_scatter[kind], slide=args.ref_slide[kind])
     lls.append(fit_ml(model, data, k, options=long_opts, warn=False).log_likelihood)
     r["long_ms"] = 1e3 * (time.process_time() - c0) / n
     m = min(args.ms_trials, n)
@@ -82,6 +87,8 @@ def _point(kind, model, k, sep, args, scenes) -> dict:
     for name, ll in (("after", lls[0]), ("before", lls[1]), ("truth", lls[2]), ("long", lls[3])):
         r[name] = _share(best - ll <= REACH)
     r["after_loose"] = _share(best - lls[0] <= REACH_LOOSE)
+    r["after_near"] = _share(best - lls[0] <= REACH_NEAR)
+    r["worst_gap"] = float(np.max(best - lls[0]))
     r["ms"] = _share(best[:m] - ms[:m] <= REACH) if m else (np.nan,) * 3
     return r
 
@@ -95,8 +102,9 @@ def _say_point(say, model, r) -> None:
     p, se, low = r["after"]
     say(f"{head}; share {p:.3f} +- {se:.3f} (95 % lower bound {low:.3f}, {r['n']} scenes): "
         f"{'met' if p >= 0.99 else 'NOT met'} (within {REACH_LOOSE:g} nats: "
-        f"{r['after_loose'][0]:.3f}); before {r['before'][0]:.3f}, LM from truth "
-        f"{r['truth'][0]:.3f}, long multistart {r['long'][0]:.3f} ({r['long_ms']:.0f} ms), "
+        f"{r['after_loose'][0]:.3f}, {REACH_NEAR:g} nats: {r['after_near'][0]:.3f}, largest "
+        f"shortfall {r['worst_gap']:.3f} nats); before {r['before'][0]:.3f}, LM from truth "
+        f"{r['truth'][0]:.3f}, long search {r['long'][0]:.3f} ({r['long_ms']:.0f} ms), "
         f"L-BFGS-B multistart {r['ms'][0]:.3f}")
 
 
@@ -104,8 +112,9 @@ def part_many(args, say, scenes, exponent) -> list[dict]:
     """Run part 3; ``scenes`` and ``exponent`` are ml_scaling's helpers."""
     say(f"\n3. many sources: median CPU ms per single fit after | before the sliding search "
         f"(interleaved), share reaching the best of both, LM from the truth, a long compiled "
-        f"multistart ({args.ref_scatter} LM starts) and L-BFGS-B multistart ({args.ms_starts} "
-        f"starts, first {args.ms_trials} scenes) (goal: >= 0.99 for K = 5..8)")
+        f"search ({args.ref_scatter} LM starts, sliding search from {args.ref_slide} optima) "
+        f"and L-BFGS-B multistart ({args.ms_starts} starts, first {args.ms_trials} scenes) "
+        f"(goal: >= 0.99 for K = 5..8)")
     rows = []
     cases = (("ring", ob.Model(ob.Ring(64), 1e-2), 20.0),
              ("sphere", ob.Model(ob.Sphere.grid(15, 20), 1e-2), 30.0))

@@ -23,7 +23,7 @@ pinned to one thread), fits of one data vector at a time:
 3. **Many sources.**  K = 1..8 on a ring of 64 and on the Fig. 2 sphere (300):
    the median time per fit with and without the sliding search (interleaved), the
    exponent of cost against K, and the share of fits reaching the best optimum of
-   both fits, an LM run from the truth, a long compiled multistart and the
+   both fits, an LM run from the truth, a long compiled search and the
    paper's multistart (``--ms-starts`` pseudo-random starts + L-BFGS-B), with
    standard errors (:mod:`_many_sources`).
 
@@ -222,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     a.ms_trials = ms_trials if a.ms_trials is None else a.ms_trials
     a.many_ks = [int(c) for c in a.many_ks]
     a.ref_scatter = {"ring": 3000, "sphere": 1000}
+    a.ref_slide = {"ring": 64, "sphere": 16}
     a.out.mkdir(parents=True, exist_ok=True)
     lines: list[str] = []
 

@@ -73,7 +73,23 @@ def test_distinct_best_takes_the_lowest_distinct_values():
 
 def test_slide_defaults_and_bad_values():
     ring = ob.Model(ob.Ring(64), 1e-2)
-    assert [FastOptions().resolve(ring, k).slide for k in (4, 5, 8)] == [0, 16, 16]
+    assert [FastOptions().resolve(ring, k).slide for k in (4, 5, 6, 7, 8, 12)] == [
+        0, 16, 16, 32, 64, 64]
+    sphere = ob.Model(ob.Sphere.grid(5, 8), 1e-2)
+    assert [FastOptions().resolve(sphere, k).slide for k in (4, 5, 8)] == [0, 16, 16]
     for field, value in (("slide", -1), ("slide", 65), ("slide", 1.5), ("slide_sweeps", 0)):
         with pytest.raises(InputError, match=field):
             FastOptions(**{field: value})
+
+
+def test_first_visits_drop_optima_already_visited_by_the_same_data_vector():
+    """A sliding path stops at an optimum (same chi^2 to 1e-9) that another path of
+    its data vector visited or reaches in the same sweep; other data vectors' optima
+    do not count."""
+    from olsbayes.ml.fast.slide import _first_visits
+
+    seen_owner, seen_chi2 = np.array([0, 0, 1]), np.array([1.0, 2.0, 3.0])
+    owner = np.array([0, 0, 0, 1, 0])
+    chi2 = np.array([2.0 * (1 + 1e-12), 1.5, 1.5, 2.0, 0.5])
+    keep = _first_visits(owner, chi2, seen_owner, seen_chi2)
+    assert keep.tolist() == [False, True, False, True, True]

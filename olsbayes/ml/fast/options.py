@@ -35,11 +35,15 @@ The defaults, and why:
   nearly equal height differ in several sources at once and the grid search
   alone often stops in one that is not the global optimum; ``distinct_modes``
   from K = 5 on too, for the same reason.
-* ``slide``: the sliding search (:mod:`~olsbayes.ml.fast.slide`) from the 16 best
+* ``slide``: the sliding search (:mod:`~olsbayes.ml.fast.slide`) from the best
   distinct optima found, from K = 5 on: moves of one or two sources to the atoms
   best correlated with the residual reach optima that the scattered starts alone
-  miss, at a cost polynomial in K; from 8 starts it missed the best optimum known
-  in several times as many ring fits at K = 7, 8.
+  miss, at a cost polynomial in K.  16 starts; on planar arrays (rings), whose
+  readings fix sums of source phasors per arc, the optima nearly as high as the
+  best multiply with K, and so does the share of fits that one sliding path from
+  each of 16 starts leaves short of the best: there twice as many starts with
+  each source beyond six, up to 64 (K >= 8).  On spheres the fits that 16 starts
+  leave short are a few 1e-4 nats from the best: the same optimum.
 """
 
 from __future__ import annotations
@@ -180,6 +184,7 @@ class FastOptions:
         escalate = (ring_cosine and k in (2, 3)) if self.escalate is None else self.escalate
         hops = (k >= 2 and model.kind == "angle" and model.sensitivity.kink
                 if self.kink_hops is None else self.kink_hops)
+        planar = model.kind == "angle"
         pick = {
             "n_coarse": 3 if k <= 3 else 24,
             "tuple_budget": 3_000 if distinct else 5_000,
@@ -190,7 +195,7 @@ class FastOptions:
             "kink_hops": hops,
             "escalate": escalate,
             "scatter": 300 if k >= 5 else 0,
-            "slide": 16 if k >= 5 else 0,
+            "slide": 0 if k < 5 else 16 * 2 ** (min(max(k - 6, 0), 2) if planar else 0),
         }
         return dataclasses.replace(self, **{name: value for name, value in pick.items()
                                             if getattr(self, name) is None})

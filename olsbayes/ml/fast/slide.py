@@ -14,7 +14,9 @@ the sweeps go on until none does (at most ``slide_sweeps``).
 
 The search starts from the ``slide`` best distinct optima found before (the
 search candidates', the scattered starts', the current fit), since the moves of
-one or two sources do not connect every pair of optima.
+one or two sources do not connect every pair of optima.  A path stops when it
+reaches an optimum that another path of its data vector has visited: from there
+both would go on alike.
 
 Cost per sweep and start: K (K + 1) / 2 LM runs of all 2K or 3K parameters and
 O(K M N) for the correlations of the residual and of the current sources with
@@ -112,12 +114,37 @@ def relocations(model: Model, g: np.ndarray, grid: np.ndarray, data: np.ndarray,
     return starts
 
 
-def _sweeps(model: Model, data: np.ndarray, out: FitOutcome, g: np.ndarray, grid: np.ndarray,
-            opts: FastOptions) -> FitOutcome:
-    """Relocation sweeps from every fit of ``out`` (of data (R, N)) until none improves."""
+def _first_visits(owner: np.ndarray, chi2: np.ndarray, seen_owner: np.ndarray,
+                  seen_chi2: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
+    """Mask of the entries (owner, chi2) that no earlier entry of the same owner matches.
+
+    An entry matches an optimum already visited (``seen_*``) or an earlier entry of
+    the batch if their chi^2 agree to ``rtol`` (relative): one optimum.
+    """
+    o = np.concatenate([seen_owner, owner])
+    c = np.concatenate([seen_chi2, chi2])
+    new = np.arange(o.size) >= seen_owner.size
+    order = np.lexsort((~new, c, o))  # by owner, then chi^2; visited first among ties
+    os_, cs = o[order], c[order]
+    dup = np.zeros(o.size, bool)
+    dup[1:] = (os_[1:] == os_[:-1]) & (cs[1:] <= cs[:-1] * (1 + rtol) + 1e-300)
+    keep = np.empty(o.size, bool)
+    keep[order] = ~dup
+    return keep[new]
+
+
+def _sweeps(model: Model, data: np.ndarray, owner: np.ndarray, out: FitOutcome, g: np.ndarray,
+            grid: np.ndarray, opts: FastOptions) -> FitOutcome:
+    """Relocation sweeps from every fit of ``out`` (of data (R, N)) until none improves.
+
+    ``owner`` (R,): the data vector of each row.  A row stops when its sweep
+    reaches an optimum that a row of the same owner has visited (or reaches in the
+    same sweep): from there both would take the same path.
+    """
     x, chi2, nev = out.x.copy(), out.chi2.copy(), out.n_evaluations.copy()
     conv, stalled = out.converged.copy(), out.stalled.copy()
     live = np.arange(x.shape[0])
+    seen_owner, seen_chi2 = owner.copy(), chi2.copy()
     for _ in range(opts.slide_sweeps):
         if live.size == 0:
             break
@@ -129,7 +156,10 @@ def _sweeps(model: Model, data: np.ndarray, out: FitOutcome, g: np.ndarray, grid
         sel = live[better]
         x[sel], chi2[sel], conv[sel] = new.x[better], new.chi2[better], new.converged[better]
         stalled[sel] = new.stalled[better]
-        live = sel
+        fresh = _first_visits(owner[sel], chi2[sel], seen_owner, seen_chi2)
+        seen_owner = np.concatenate([seen_owner, owner[sel]])
+        seen_chi2 = np.concatenate([seen_chi2, chi2[sel]])
+        live = sel[fresh]
     return FitOutcome(x, chi2, conv, nev, stalled)
 
 
@@ -148,7 +178,7 @@ def slide(model: Model, data: np.ndarray, out: FitOutcome, pool: tuple[np.ndarra
     n = owner.size
     start = FitOutcome(xs[owner, col], cs[owner, col], np.ones(n, bool),
                        np.zeros(n, np.int64), np.zeros(n, bool))
-    res = _sweeps(model, data[owner], start, g, grid, opts)
+    res = _sweeps(model, data[owner], owner, start, g, grid, opts)
     # every data vector has >= 1 start (its fit): the first of its rows by chi^2
     best = np.lexsort((res.chi2, owner))[np.searchsorted(owner, np.arange(t))]
     x, chi2 = out.x.copy(), out.chi2.copy()
