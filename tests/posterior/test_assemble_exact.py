@@ -1,0 +1,55 @@
+"""The fast paths behind a posterior result give the numbers of their plain definitions."""
+
+import numpy as np
+import pytest
+
+from olsbayes.circular import TWO_PI, wrap_angle
+from olsbayes.exchange import best_permutation, pair_costs
+from olsbayes.posterior import _labels
+
+
+def _bits(a) -> np.ndarray:
+    return np.asarray(a, dtype=float).view(np.int64)
+
+
+def test_wrap_angle_is_the_floored_modulus_bit_for_bit():
+    rng = np.random.default_rng(3)
+    edges = np.pi + np.arange(-40, 41)[:, None] * TWO_PI + np.array([-1e-15, 0.0, 1e-15])
+    x = np.concatenate([
+        rng.uniform(-4, 4, 20000), rng.uniform(-1e3, 1e3, 20000), rng.normal(0, 1e-9, 2000),
+        edges.ravel(), np.nextafter(edges, np.inf).ravel(), np.nextafter(edges, -np.inf).ravel(),
+        [0.0, -0.0, np.pi, -np.pi, 1e300, -1e300, 5e-324, -5e-324, np.inf, -np.inf, np.nan]])
+    with np.errstate(invalid="ignore"):
+        plain = np.pi - np.mod(np.pi - x, TWO_PI)
+        fast = wrap_angle(x)
+        strided = wrap_angle(x.reshape(-1, 1)[::3, 0])
+    assert np.array_equal(_bits(fast), _bits(plain))
+    assert np.array_equal(_bits(strided), _bits(plain[::3]))
+    assert np.array_equal(_bits(wrap_angle(x[:7].reshape(7, 1))), _bits(plain[:7].reshape(7, 1)))
+    assert wrap_angle(3 * np.pi) == np.pi - np.mod(np.pi - 3 * np.pi, TWO_PI)
+    assert np.ndim(wrap_angle(0.5)) == 0
+    source = x[:100].copy()
+    wrap_angle(source)
+    assert np.array_equal(_bits(source), _bits(x[:100]), equal_nan=False)  # input untouched
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_relabel_in_blocks_of_draws_matches_one_block(monkeypatch, k):
+    rng = np.random.default_rng(k)
+    n, w = 3000, 2
+    centre = np.stack([np.linspace(-3, 3, k, endpoint=False), np.linspace(1, 2, k)], axis=1)
+    blocks = centre + rng.normal(0, 0.6, (n, k, w))
+    blocks = blocks[np.arange(n)[:, None], rng.permuted(np.tile(np.arange(k), (n, 1)), axis=1)]
+    x = blocks.reshape(n // 30, 30, k * w)
+    periodic = np.array([True, False])
+    scale = rng.uniform(0.5, 2.0, (k, w))
+    whole = best_permutation(pair_costs(blocks, centre, periodic, scale))
+    monkeypatch.setattr(_labels, "_CHUNK", 37)
+    assert np.array_equal(_labels._nearest(blocks, centre, periodic, scale), whole)
+    small, perms_small = _labels.relabel(x, k, periodic, anchor=centre.ravel())
+    monkeypatch.setattr(_labels, "_CHUNK", 10**9)
+    big, perms_big = _labels.relabel(x, k, periodic, anchor=centre.ravel())
+    assert np.array_equal(perms_small, perms_big)
+    assert np.array_equal(_bits(small), _bits(big))
+    assert np.array_equal(_labels._permuted(blocks, whole),
+                          np.take_along_axis(blocks, whole[:, :, None], axis=1))
