@@ -80,7 +80,9 @@ def predictive_draws(model: Model, prior: ScenePrior, x: np.ndarray,
     else:
         mu = np.zeros((flat.shape[0], model.n_sensors))
     sd = flat[:, -1:] if prior.noise is not None else model.sigma
-    rep = mu + sd * gen.standard_normal(mu.shape)
+    rep = gen.standard_normal(mu.shape)
+    np.multiply(sd, rep, out=rep)
+    np.add(mu, rep, out=rep)  # mu + sd * noise, on one array
     return rep.reshape(x.shape[:-1] + (model.n_sensors,))
 
 
@@ -102,10 +104,11 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     with np.errstate(invalid="ignore"):  # a walker that never moved: NaN tau, not a warning
         tau = np.asarray(sampler.get_autocorr_time(tol=0), dtype=float)
     keep, n_burn, thin = _kept_steps(tau, n_steps, options)
-    moved = np.any(chain[keep] != chain[np.maximum(keep - 1, 0)], axis=-1)
+    kept = chain[n_burn::thin]  # chain[keep], a view
+    moved = np.any(kept != chain[np.maximum(keep - 1, 0)], axis=-1)
     moved[keep == 0] = True
-    z = chain[keep].swapaxes(0, 1)  # (W, D, P)
-    lpost = sampler.get_log_prob()[keep].T - logpost.jacobian(z)  # density of x, not z
+    z = kept.swapaxes(0, 1)  # (W, D, P)
+    lpost = sampler.get_log_prob()[n_burn::thin].T - logpost.jacobian(z)  # density of x, not z
     x = logpost.to_params(z)
     w = prior.n_loc + 1
     periodic_loc = prior.periodic[:w] if prior.n_sources else np.zeros(w, bool)

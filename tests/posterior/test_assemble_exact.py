@@ -53,3 +53,50 @@ def test_relabel_in_blocks_of_draws_matches_one_block(monkeypatch, k):
     assert np.array_equal(_bits(small), _bits(big))
     assert np.array_equal(_labels._permuted(blocks, whole),
                           np.take_along_axis(blocks, whole[:, :, None], axis=1))
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_rhat_columns_on_demand_are_the_unwrapped_draws(k):
+    import olsbayes as ob
+    from olsbayes.posterior._rhat import _unwrapped, _unwrapped_columns
+    from olsbayes.priors import default_priors
+
+    prior = default_priors(ob.Model(ob.Ring(30), sigma=0.01), k, i_max=2.0)
+    rng = np.random.default_rng(k)
+    for x in (rng.uniform(-np.pi, np.pi, (16, 300, 2 * k)),
+              np.pi - np.abs(rng.normal(0, 0.3, (32, 200, 2 * k)))):  # around +-pi
+        whole, column = _unwrapped(x, prior), _unwrapped_columns(x, prior)
+        for j in range(2 * k):
+            assert np.array_equal(_bits(np.ascontiguousarray(column(j))),
+                                  _bits(np.ascontiguousarray(whole[..., j])))
+
+
+def _absorb_lag_by_lag(self, chain, start, stop):
+    """The lag sums' plain definition: one product sum per lag."""
+    from olsbayes._one import sum_products
+
+    n_lag = self._lags.shape[0]
+    lo = max(0, start - n_lag + 1)
+    y = chain[lo:stop] - self._ref
+    for lag in range(min(n_lag, stop)):
+        first = max(start, lag) - lo
+        if first < stop - lo:
+            self._lags[lag] += sum_products("t...,t...->...", y[first - lag:stop - lo - lag],
+                                            y[first:])
+
+
+@pytest.mark.parametrize("walkers, n_params", [(32, 6), (8, 3), (16, 2)])
+def test_autocorr_lag_sums_in_one_call_match_lag_by_lag(walkers, n_params):
+    from olsbayes.posterior._run import AutocorrTime
+
+    class LagByLag(AutocorrTime):
+        _absorb = _absorb_lag_by_lag
+
+    rng = np.random.default_rng(walkers)
+    step = rng.normal(0, 0.05, (900, walkers, n_params))
+    step[rng.uniform(size=(900, walkers)) < 0.6] = 0.0  # rejected proposals
+    chain = np.cumsum(step, axis=0) + rng.normal(size=(walkers, n_params))
+    fast, plain = AutocorrTime(chain[0], max_lag=8), LagByLag(chain[0], max_lag=8)
+    for it in range(50, 901, 50):
+        assert np.array_equal(_bits(fast.update(chain[:it])), _bits(plain.update(chain[:it])))
+        assert np.array_equal(_bits(fast._lags), _bits(plain._lags))
