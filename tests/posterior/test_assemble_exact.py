@@ -100,3 +100,61 @@ def test_autocorr_lag_sums_in_one_call_match_lag_by_lag(walkers, n_params):
     for it in range(50, 901, 50):
         assert np.array_equal(_bits(fast.update(chain[:it])), _bits(plain.update(chain[:it])))
         assert np.array_equal(_bits(fast._lags), _bits(plain._lags))
+
+
+def test_the_pointwise_likelihood_is_made_on_first_access_with_the_same_numbers(
+        monkeypatch, tmp_path):
+    import pickle
+
+    import olsbayes as ob
+    from olsbayes.posterior import _lazy
+    from olsbayes.posterior._arviz import from_netcdf, to_netcdf
+
+    model = ob.Model(ob.Ring(12), sigma=0.05)
+    data = model.simulate(np.array([0.4, 1.0]), rng=5)
+    opts = ob.posterior.SamplerOptions(n_steps=200, n_walkers=16)
+    lazy = ob.posterior.sample(model, data, 1, start=np.array([0.4, 1.0]), options=opts,
+                               rng=1, progress=False).idata
+
+    class Eager:  # the values at once, as a plain array
+        def __new__(cls, make, shape):
+            return make()
+
+    monkeypatch.setattr(_lazy, "Deferred", Eager)
+    eager = ob.posterior.sample(model, data, 1, start=np.array([0.4, 1.0]), options=opts,
+                                rng=1, progress=False).idata
+    monkeypatch.undo()
+    backend = lazy.log_likelihood["obs"].variable._data.array
+    assert isinstance(backend, _lazy.DeferredArray) and backend.deferred._values is None
+    ll, ref = lazy.log_likelihood, eager.log_likelihood
+    assert ll["obs"].dims == ref["obs"].dims and ll["obs"].attrs == ref["obs"].attrs
+    assert {k: v for k, v in ll.attrs.items() if not k.startswith("created")} == {
+        k: v for k, v in ref.attrs.items() if not k.startswith("created")}
+    assert all(ll[c].equals(ref[c]) for c in ref.coords)
+    assert np.array_equal(_bits(ll["obs"].isel(sensor=[2, 5]).values),
+                          _bits(ref["obs"].isel(sensor=[2, 5]).values))
+    assert np.array_equal(_bits(ll["obs"].values), _bits(ref["obs"].values))
+    again = pickle.loads(pickle.dumps(lazy))
+    assert np.array_equal(_bits(again.log_likelihood["obs"].values), _bits(ref["obs"].values))
+    back = from_netcdf(to_netcdf(lazy, tmp_path / "post.nc"))
+    assert np.array_equal(_bits(back.log_likelihood["obs"].values), _bits(ref["obs"].values))
+
+
+@pytest.mark.parametrize("inferred", [False, True])
+def test_predictive_replicas_block_by_block_are_the_plain_expression(inferred):
+    import olsbayes as ob
+    from olsbayes.posterior._assemble import predictive_draws
+    from olsbayes.priors import default_priors
+
+    model = ob.Model(ob.Ring(30), sigma=0.01)
+    prior = default_priors(model, 2, i_max=2.0, infer_sigma=inferred)
+    rng = np.random.default_rng(2)
+    x = np.concatenate([rng.uniform(-3, 3, (3, 700, 4)),
+                        rng.uniform(0.005, 0.02, (3, 700, 1))], axis=-1)[..., :prior.n_params]
+    mu = model.response(x[..., :4])
+    sd = x[..., -1:] if inferred else model.sigma
+    plain = mu + sd * np.random.default_rng(9).standard_normal(mu.shape)
+    fast = predictive_draws(model, prior, x, np.random.default_rng(9), mu.copy())
+    assert np.array_equal(_bits(fast), _bits(plain))
+    assert np.array_equal(_bits(predictive_draws(model, prior, x, np.random.default_rng(9))),
+                          _bits(plain))
