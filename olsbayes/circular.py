@@ -15,8 +15,20 @@ TWO_PI = 2.0 * np.pi
 
 
 def wrap_angle(x: np.ndarray | float) -> np.ndarray:
-    """Angles (rad) wrapped to the interval (-pi, pi], same shape as ``x``."""
-    return np.pi - np.mod(np.pi - np.asarray(x, dtype=float), TWO_PI)
+    """Angles (rad) wrapped to the interval (-pi, pi], same shape as ``x``.
+
+    ``pi - mod(pi - x, 2 pi)``.  On arrays the floored modulus is taken as numpy's
+    ``mod`` takes it -- the truncated remainder ``fmod``, plus 2 pi where it is
+    negative (a zero remainder's sign does not reach the result) -- in place on one
+    temporary: the same numbers, without ``mod``'s floor division.
+    """
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 0:
+        return np.pi - np.mod(np.pi - x, TWO_PI)
+    y = np.subtract(np.pi, x)
+    np.fmod(y, TWO_PI, out=y)
+    np.add(y, TWO_PI, out=y, where=y < 0)
+    return np.subtract(np.pi, y, out=y)
 
 
 def circular_mean(a: np.ndarray, axis: int | None = None) -> np.ndarray:

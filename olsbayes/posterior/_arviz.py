@@ -209,8 +209,8 @@ def to_inference_data(
     log_posterior, log_prior : ndarray (chain, draw)
     accepted : ndarray of bool (chain, draw)
         Whether the walker moved at that step.
-    pointwise : ndarray (chain, draw, N)
-        Per-sub-sensor log-likelihood.
+    pointwise : ndarray (chain, draw, N) or Deferred
+        Per-sub-sensor log-likelihood; a :class:`~._lazy.Deferred` is made on first access.
     data : ndarray (N,)
     constants : dict
         ``constant_data`` arrays: ``normals``/``positions`` (N, D) get dims
@@ -230,6 +230,11 @@ def to_inference_data(
         ``prior`` group.
     """
     az = import_arviz()
+    from ._lazy import Deferred
+
+    deferred = pointwise if isinstance(pointwise, Deferred) else None
+    if deferred is not None:
+        pointwise = deferred.placeholder()
     post = _by_variable(unwrap_periodic(draws, centre, periodic), names)
     dims, coords = _dims_coords(post, names, constants, data.shape[-1], draws.shape[0])
     with _known_shapes():
@@ -246,6 +251,8 @@ def to_inference_data(
             dims=dims,
             attrs=attrs,
         )
+    if deferred is not None:
+        deferred.install(idata.log_likelihood, "obs")
     for group in idata.groups():  # ArviZ keeps ``attrs`` on the object; groups need them
         getattr(idata, group).attrs.update(attrs)
     angles = {base for (base, _), per in zip(split_names(names), periodic) if per}

@@ -4,11 +4,14 @@ Sources are labelled as in the walkers' starting point (the ML estimate by
 default, in canonical order), so the posterior's ``theta[0]`` is the ML table's
 source 0 (:mod:`olsbayes.posterior._labels`).  The InferenceData also gets the
 posterior predictive readings -- one noisy replicate of the readings per stored
-draw, drawn from the same stream as the prior draws, after them.
+draw, drawn from the same stream as the prior draws, after them.  Its pointwise
+log-likelihood (read by model comparison only) is computed on first access
+(:mod:`olsbayes.posterior._lazy`), with the same numbers.
 """
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -64,24 +67,38 @@ def _point_estimate(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
     return estimate
 
 
+#: Readings whose noise is drawn at once (a buffer small enough to stay in cache).
+_NOISE_BLOCK = 1 << 15
+
+
 def predictive_draws(model: Model, prior: ScenePrior, x: np.ndarray,
                      gen: np.random.Generator, mu: np.ndarray | None = None) -> np.ndarray:
     """Replicated readings (..., N): the response of every draw x (..., P) plus noise.
 
-    The noise sd is the draw's ``sigma`` when it is inferred, else ``model.sigma``.
-    ``mu`` (..., N): the draws' response when the caller has it already.
+    The noise sd is the draw's ``sigma`` when it is inferred, else ``model.sigma``;
+    the noise is ``gen.standard_normal`` of shape (..., N), drawn block by block
+    of draws (the same stream).  ``mu`` (..., N): the draws' response when the
+    caller has it already; the replicas are written into it.
     """
     p_model = model.n_params(prior.n_sources)
     flat = x.reshape(-1, x.shape[-1])
+    n = model.n_sensors
     if mu is not None:
-        mu = mu.reshape(flat.shape[0], model.n_sensors)
+        rep = mu.reshape(flat.shape[0], n)
     elif p_model:
-        mu = model.response(flat[:, :p_model])
+        rep = model.response(flat[:, :p_model])
     else:
-        mu = np.zeros((flat.shape[0], model.n_sensors))
+        rep = np.zeros((flat.shape[0], n))
     sd = flat[:, -1:] if prior.noise is not None else model.sigma
-    rep = mu + sd * gen.standard_normal(mu.shape)
-    return rep.reshape(x.shape[:-1] + (model.n_sensors,))
+    rows = max(1, _NOISE_BLOCK // n)
+    noise = np.empty((min(rows, rep.shape[0]), n))
+    for lo in range(0, rep.shape[0], rows):
+        part = rep[lo:lo + rows]
+        z = noise[:part.shape[0]]
+        gen.standard_normal(out=z)
+        np.multiply(sd if np.ndim(sd) == 0 else sd[lo:lo + rows], z, out=z)
+        np.add(part, z, out=part)  # mu + sd * noise
+    return rep.reshape(x.shape[:-1] + (n,))
 
 
 def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
@@ -95,6 +112,7 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     import emcee
 
     from .._version import __version__
+    from ._lazy import Deferred
 
     prior = logpost.prior
     chain = sampler.get_chain()  # (steps, W, P) sampler coordinates
@@ -102,10 +120,11 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     with np.errstate(invalid="ignore"):  # a walker that never moved: NaN tau, not a warning
         tau = np.asarray(sampler.get_autocorr_time(tol=0), dtype=float)
     keep, n_burn, thin = _kept_steps(tau, n_steps, options)
-    moved = np.any(chain[keep] != chain[np.maximum(keep - 1, 0)], axis=-1)
+    kept = chain[n_burn::thin]  # chain[keep], a view
+    moved = np.any(kept != chain[np.maximum(keep - 1, 0)], axis=-1)
     moved[keep == 0] = True
-    z = chain[keep].swapaxes(0, 1)  # (W, D, P)
-    lpost = sampler.get_log_prob()[keep].T - logpost.jacobian(z)  # density of x, not z
+    z = kept.swapaxes(0, 1)  # (W, D, P)
+    lpost = sampler.get_log_prob()[n_burn::thin].T - logpost.jacobian(z)  # density of x, not z
     x = logpost.to_params(z)
     w = prior.n_loc + 1
     periodic_loc = prior.periodic[:w] if prior.n_sources else np.zeros(w, bool)
@@ -132,9 +151,10 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
         observed = _general.statistic(model, data, logpost.frames)
         replicas = _general.predictive(model, prior, x, gen_prior, n_frames)
         pointwise = logpost.pointwise(x)
-    else:  # one response of the draws for the pointwise likelihood and the replicas
+    else:  # the pointwise likelihood (read by model comparison only) when first read
         mu = model.response(x[..., :logpost.n_model]) if logpost.n_model else None
-        pointwise = logpost.pointwise(x, mu)
+        pointwise = Deferred(functools.partial(logpost.pointwise, x),
+                             x.shape[:-1] + (model.n_sensors,))
         observed, replicas = data, predictive_draws(model, prior, x, gen_prior, mu)
     idata = to_inference_data(
         x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),

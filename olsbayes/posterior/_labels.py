@@ -44,6 +44,29 @@ def _diff(a: np.ndarray, b: np.ndarray, periodic: np.ndarray) -> np.ndarray:
     return d
 
 
+#: Draws whose pair costs are built at once (temporaries small enough to stay in cache).
+_CHUNK = 8192
+
+
+def _nearest(blocks: np.ndarray, ref: np.ndarray, periodic: np.ndarray,
+             scale: np.ndarray) -> np.ndarray:
+    """Permutation (S, K) putting each draw's sources (S, K, w) nearest ``ref`` (K, w).
+
+    Draw by draw the same costs and choice as
+    ``best_permutation(pair_costs(blocks, ref, periodic, scale))``, in blocks of draws.
+    """
+    out = np.empty(blocks.shape[:2], dtype=np.int64)
+    for lo in range(0, blocks.shape[0], _CHUNK):
+        part = blocks[lo:lo + _CHUNK]
+        out[lo:lo + part.shape[0]] = best_permutation(pair_costs(part, ref, periodic, scale))
+    return out
+
+
+def _permuted(blocks: np.ndarray, perm: np.ndarray) -> np.ndarray:
+    """Blocks (S, K, w) with draw s's sources taken in the order ``perm[s]`` (S, K)."""
+    return blocks[np.arange(blocks.shape[0])[:, None], perm]
+
+
 def reference_order(blocks: np.ndarray, periodic: np.ndarray, pivot: float) -> np.ndarray:
     """Permutation putting one draw's sources (K, w) in canonical order.
 
@@ -131,16 +154,16 @@ def relabel(
     scale = np.broadcast_to(np.maximum(scale.mean(axis=0), 1e-300), (k, w))
     perm = None
     for _ in range(max(1, n_iter)):
-        last, perm = perm, best_permutation(pair_costs(blocks, ref, periodic, scale))
+        last, perm = perm, _nearest(blocks, ref, periodic, scale)
         if last is not None and np.array_equal(perm, last):
             break  # the same labels give the same reference: a fixed point
-        ordered = np.take_along_axis(blocks, perm[:, :, None], axis=1)
+        ordered = _permuted(blocks, perm)
         ref, scale = _mean_scale(ordered, periodic)
         scale = np.maximum(scale, 1e-12 * np.maximum(scale.max(axis=0), 1e-300))
     if anchor is None:  # labels follow the anchor's sources when there is one
         perm = perm[:, canonical_order(ref, periodic)]
     out = flat.copy()
-    out[:, : k * w] = np.take_along_axis(blocks, perm[:, :, None], axis=1).reshape(-1, k * w)
+    out[:, : k * w] = _permuted(blocks, perm).reshape(-1, k * w)
     return out.reshape(x.shape), perm.reshape(lead + (k,))
 
 

@@ -133,10 +133,10 @@ class RhatCheck:
 
     def below(self, x: np.ndarray) -> bool:
         """max R-hat of draws x (W, D, P) < rhat_max, stopping at the first above."""
-        x = _unwrapped(x, self.prior)
+        column = _unwrapped_columns(x, self.prior)
         order = [self.first] + [j for j in range(x.shape[-1]) if j != self.first]
         for j in order:
-            value = rank_rhat(x[..., j], self.rhat_max)
+            value = rank_rhat(column(j), self.rhat_max)
             if not value < self.rhat_max:
                 self.first, self.last = j, value
                 return False
@@ -171,6 +171,26 @@ def _one_permutation(perms: np.ndarray) -> bool:
     """Whether every draw of ``perms`` (..., K) has the same permutation."""
     flat = perms.reshape(-1, perms.shape[-1])
     return bool(np.all(flat == flat[0]))
+
+
+def _unwrapped_columns(x: np.ndarray, prior: ScenePrior):
+    """``column(j)``: column j (W, D) of :func:`_unwrapped` of draws x (W, D, P), on demand.
+
+    The circular means are those of :func:`_unwrapped` (all angles at once); a
+    column is unwrapped only when asked for, and the check stops at the first
+    parameter above the bound.
+    """
+    per = prior.periodic
+    centre = np.zeros(per.size)
+    if per.any():
+        centre[per] = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)
+
+    def column(j: int) -> np.ndarray:
+        if not per[j]:
+            return x[..., j]
+        return centre[j] + wrap_angle(x[..., j] - centre[j])
+
+    return column
 
 
 def _unwrapped(x: np.ndarray, prior: ScenePrior) -> np.ndarray:

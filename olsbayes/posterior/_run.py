@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 
 from .._one import sum_products
 from .._progress import progress_bar
@@ -186,7 +187,13 @@ class AutocorrTime:
         n_lag = self._lags.shape[0]
         lo = max(0, start - n_lag + 1)
         y = chain[lo:stop] - self._ref  # the new steps and the n_lag - 1 before them
-        for lag in range(min(n_lag, stop)):
+        shared = min(n_lag, start + 1) if start < stop else 0
+        if shared:  # lags up to ``start``: all sum over the new steps, in one kernel call
+            now = y[start - lo:]
+            back = as_strided(now, shape=(shared,) + now.shape,
+                              strides=(-now.strides[0],) + now.strides, writeable=False)
+            self._lags[:shared] += sum_products("lt...,t...->l...", back, now)
+        for lag in range(shared, min(n_lag, stop)):
             first = max(start, lag) - lo
             if first < stop - lo:
                 self._lags[lag] += sum_products("t...,t...->...", y[first - lag:stop - lo - lag],
