@@ -39,7 +39,8 @@ class PosteriorResult:
         ``circular``/``units`` attributes), ``posterior_predictive`` (``obs``:
         one replicate of the readings per draw), ``sample_stats`` (``lp``,
         ``log_prior``, ``acceptance_rate``), ``log_likelihood`` (``obs``, one
-        entry per sub-sensor), ``observed_data`` (``obs``), ``constant_data``
+        entry per sub-sensor; computed on its first access, as large as the draws
+        times the readings), ``observed_data`` (``obs``), ``constant_data``
         (``normals``, ``positions`` for plates, ``sigma`` when known, and
         ``crlb_cov``, ``estimate``, ``tau``, ``start``, ``acceptance_fraction``
         with named dims) and ``prior``; the attributes name the inference library
