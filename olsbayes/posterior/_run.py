@@ -39,11 +39,28 @@ def _vector_sampler_class() -> type:
     emcee turns a vectorised log-probability into floats walker by walker (and
     first looks for blobs in each entry); :class:`LogPosterior` returns a float
     array without blobs, so one conversion gives the same numbers.  The checks
-    (no infinite or NaN position, no NaN log-probability) are emcee's.
+    (no infinite or NaN position, no NaN log-probability) are emcee's.  With
+    ``lean_state`` the sampler's ``random_state`` reads None, so emcee does not copy
+    the generator's state into every step's ``State`` (reading it draws nothing).
     """
     import emcee
 
     class VectorSampler(emcee.EnsembleSampler):
+        #: True: emcee's copy of the generator's state into every step's State is
+        #: skipped (a 624-word copy per step that only a checkpoint reads; the draws
+        #: are the same).
+        lean_state = False
+
+        @property
+        def random_state(self):
+            if self.lean_state:
+                return None
+            return emcee.EnsembleSampler.random_state.fget(self)
+
+        @random_state.setter
+        def random_state(self, state):
+            emcee.EnsembleSampler.random_state.fset(self, state)
+
         def compute_log_prob(self, coords):
             if self.params_are_named:  # pragma: no cover - the package never names them
                 return super().compute_log_prob(coords)
@@ -89,6 +106,7 @@ def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: Sample
                 return True  # it had converged at a check already stored
     import emcee
 
+    sampler.lean_state = checkpoint is None  # only a checkpoint reads the per-step state
     total = options.n_steps if watch.fixed else None
     with progress_bar(enabled=progress, desc="posterior", unit=" steps", total=total,
                       initial=done) as bar:
