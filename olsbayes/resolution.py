@@ -39,6 +39,7 @@ import warnings
 
 import numpy as np
 
+from .circular import wrap_angle
 from .errors import NearResolutionWarning
 
 __all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "RESOLUTION_SPACINGS",
@@ -138,9 +139,9 @@ def antipodal_doubts(model, x: np.ndarray) -> np.ndarray:
         return np.zeros(t, dtype=bool)
     theta = x.reshape(t, k, model.n_loc + 1)[..., 0]
     i, j = np.triu_indices(k, 1)
-    diff = np.abs(np.angle(np.exp(1j * (theta[:, i] - theta[:, j]))))  # (T, pairs) in [0, pi]
-    gap = (np.pi - diff) / (2.0 * np.pi / model.n_sensors)
-    near = gap < ANTIPODAL_DOUBT
+    # each pair's offset from antipodal, as olsbayes.antipodal.antipodal_pairs measures it
+    offset = wrap_angle(theta[:, j] - theta[:, i] - np.pi) / (2.0 * np.pi / model.n_sensors)
+    near = np.abs(offset) < ANTIPODAL_DOUBT  # (T, pairs)
     return (near.any(axis=1) & (k >= 4)) | (near.sum(axis=1) >= 2)
 
 

@@ -174,11 +174,12 @@ def _one_permutation(perms: np.ndarray) -> bool:
 
 
 def _unwrapped_columns(x: np.ndarray, prior: ScenePrior):
-    """``column(j)``: column j (W, D) of :func:`_unwrapped` of draws x (W, D, P), on demand.
+    """``column(j)``: column j (W, D) of draws x (W, D, P), angles unwrapped on demand.
 
-    The circular means are those of :func:`_unwrapped` (all angles at once); a
-    column is unwrapped only when asked for, and the check stops at the first
-    parameter above the bound.
+    An angle column is ``centre + wrap(x - centre)`` around the circular mean of
+    its draws (the means of all angles computed at once), as
+    :func:`olsbayes.circular.unwrap_around`; a column is unwrapped only when asked
+    for, and the check stops at the first parameter above the bound.
     """
     per = prior.periodic
     centre = np.zeros(per.size)
@@ -192,12 +193,3 @@ def _unwrapped_columns(x: np.ndarray, prior: ScenePrior):
 
     return column
 
-
-def _unwrapped(x: np.ndarray, prior: ScenePrior) -> np.ndarray:
-    """Draws (W, D, P) with angles unwrapped around their circular means (for R-hat)."""
-    if prior.periodic.any():
-        per = prior.periodic
-        centre = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)
-        x = x.copy()
-        x[..., per] = centre + wrap_angle(x[..., per] - centre)
-    return x

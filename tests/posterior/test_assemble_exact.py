@@ -58,14 +58,18 @@ def test_relabel_in_blocks_of_draws_matches_one_block(monkeypatch, k):
 @pytest.mark.parametrize("k", [1, 2, 3])
 def test_rhat_columns_on_demand_are_the_unwrapped_draws(k):
     import olsbayes as ob
-    from olsbayes.posterior._rhat import _unwrapped, _unwrapped_columns
+    from olsbayes.circular import circular_mean, unwrap_around
+    from olsbayes.posterior._rhat import _unwrapped_columns
     from olsbayes.priors import default_priors
 
     prior = default_priors(ob.Model(ob.Ring(30), sigma=0.01), k, i_max=2.0)
     rng = np.random.default_rng(k)
     for x in (rng.uniform(-np.pi, np.pi, (16, 300, 2 * k)),
               np.pi - np.abs(rng.normal(0, 0.3, (32, 200, 2 * k)))):  # around +-pi
-        whole, column = _unwrapped(x, prior), _unwrapped_columns(x, prior)
+        per = prior.periodic
+        centre = np.zeros(per.size)
+        centre[per] = circular_mean(x[..., per].reshape(-1, int(per.sum())), axis=0)
+        whole, column = unwrap_around(x, centre, per), _unwrapped_columns(x, prior)
         for j in range(2 * k):
             assert np.array_equal(_bits(np.ascontiguousarray(column(j))),
                                   _bits(np.ascontiguousarray(whole[..., j])))
