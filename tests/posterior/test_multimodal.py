@@ -27,8 +27,14 @@ def scene4():
 @pytest.fixture(scope="module")
 def multimodal4(scene4):
     model, data = scene4
-    with pytest.warns(MultimodalWarning, match="near-antipodal"):
-        return sample(model, data, 4, rng=3, progress=False, options=SHORT)
+    with pytest.warns(MultimodalWarning) as caught:
+        res = sample(model, data, 4, rng=3, progress=False, options=SHORT)
+    # the multimodal sampler is chosen for the near-antipodal pairs, and the two pairs
+    # still warn: sampled intervals of such scenes under-covered in simulation
+    said = [(type(w.message), str(w.message)) for w in caught]
+    assert any(c is MultimodalWarning and "near-antipodal" in m for c, m in said)
+    assert any(c is AntipodalWarning and "covered the truth less often" in m for c, m in said)
+    return res
 
 
 def test_opposite_readings_differ_by_one_cosine():
@@ -163,12 +169,15 @@ def test_crlb_alarm_reruns_with_the_modes(scene4, monkeypatch):
     monkeypatch.setattr(modal, "trigger_reason", lambda *args: "")  # no trigger before the run
     monkeypatch.setattr(sampler, "narrower_than_crlb",
                         lambda result: [("theta[0]", 0.5, 1000.0)])
-    with pytest.warns(MultimodalWarning, match="far below the CRLB"):
+    doubt = "covered the truth less often"  # the two near-antipodal pairs, either way
+    with pytest.warns(AntipodalWarning, match=doubt), \
+            pytest.warns(MultimodalWarning, match="far below the CRLB"):
         res = sample(model, data, 4, rng=3, progress=False,
                      options=SamplerOptions(n_steps=150, rhat_max=None))
     assert res.modes.n_modes == 4 and "CRLB" in res.modes.reason
     off = SamplerOptions(n_steps=150, rhat_max=None, modes=ModeOptions(crlb_alarm=False))
-    with pytest.warns(Warning, match="far below the CRLB"):
+    with pytest.warns(AntipodalWarning, match=doubt), \
+            pytest.warns(Warning, match="far below the CRLB"):
         assert sample(model, data, 4, rng=3, progress=False, options=off).modes is None
 
 
@@ -220,3 +229,19 @@ def test_mode_evidence_survives_scales_far_apart():
 
     log_z, se = mode_evidence(logpost, z, 4000, rng)
     assert abs(log_z) < 4 * se + 0.02 and se < 0.05
+
+
+def test_sampler_doubt_follows_the_ml_rule():
+    """The sampler's AntipodalWarning fires exactly where fit_ml's doubt rule does:
+    four sources with a pair within one spacing of antipodal, not a separated
+    four-source scene nor the two-source antipodal scene of the paper's Fig. 3."""
+    from olsbayes.posterior.sampler import _warn_doubts
+
+    model = Model(Ring(30), sigma=1e-3)
+    with pytest.warns(AntipodalWarning, match="less often than stated"):
+        _warn_doubts(model, TRUTH4)
+    separated = np.array([-2.7, 1.0, -1.3, 0.8, 0.0, 1.2, 1.2, 0.9])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_doubts(model, separated)
+        _warn_doubts(model, np.array([0.5, 1.0, 0.5 + np.pi, 0.2]))
