@@ -39,6 +39,7 @@ from k4_threshold import BENCHMARK_ANGLES, INTENSITIES, scene_stats  # noqa: E40
 
 import olsbayes as ob  # noqa: E402
 from olsbayes._io import write_text_atomic  # noqa: E402
+from olsbayes.circular import wrap_angle  # noqa: E402
 
 __all__ = ["main", "gap_spacings", "share_near"]
 
@@ -50,7 +51,7 @@ BINS = ((0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 15.0))
 
 def gap_spacings(theta: np.ndarray) -> np.ndarray:
     """Distance of the nearest pair from antipodal (spacings) of scenes ``theta`` (..., K)."""
-    d = np.abs(np.angle(np.exp(1j * (theta[..., :, None] - theta[..., None, :]))))
+    d = np.abs(wrap_angle(theta[..., :, None] - theta[..., None, :]))
     iu = np.triu_indices(theta.shape[-1], 1)
     return (np.pi - d[..., iu[0], iu[1]].max(axis=-1)) / H
 

@@ -56,6 +56,7 @@ from tqdm import tqdm
 
 from olsbayes import Model, Ring, crlb_eq4
 from olsbayes.bounds import bound_covariance
+from olsbayes.circular import wrap_angle
 from olsbayes.errors import OlsBayesWarning
 from olsbayes.select import SelectOptions, select_k
 
@@ -70,8 +71,8 @@ def _angle_rms(est: np.ndarray, truth: np.ndarray) -> float:
     """RMS angle error of canonical K = 2 estimates against the truth (best pairing)."""
     e = est.reshape(2, 2)[:, 0]
     t = truth.reshape(2, 2)[:, 0]
-    d1 = np.angle(np.exp(1j * (e - t)))
-    d2 = np.angle(np.exp(1j * (e - t[::-1])))
+    d1 = wrap_angle(e - t)
+    d2 = wrap_angle(e - t[::-1])
     return float(min(np.sqrt(np.mean(d1**2)), np.sqrt(np.mean(d2**2))))
 
 

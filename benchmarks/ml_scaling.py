@@ -48,6 +48,7 @@ from _many_sources import part_many  # noqa: E402
 from _numpy_baseline import NumpyGridFitter  # noqa: E402
 
 import olsbayes as ob  # noqa: E402
+from olsbayes.circular import wrap_angle  # noqa: E402
 from olsbayes.geometry import lonlat_to_unit  # noqa: E402
 from olsbayes.ml import fit_ml  # noqa: E402
 from olsbayes.ml.atoms import cached_default_grid  # noqa: E402
@@ -69,7 +70,7 @@ def scenes(kind: str, k: int, n: int, rng: np.random.Generator,
     while len(out) < n:
         if kind == "ring":
             a = rng.uniform(-np.pi, np.pi, k)
-            d = np.abs(np.angle(np.exp(1j * (a[:, None] - a[None, :]))))
+            d = np.abs(wrap_angle(a[:, None] - a[None, :]))
             loc = a[:, None]
         else:
             lon, lat = rng.uniform(-np.pi, np.pi, k), np.arcsin(rng.uniform(-1, 1, k))
