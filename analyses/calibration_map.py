@@ -13,7 +13,10 @@ cell and method:
 
 * SBC: Kolmogorov-Smirnov uniformity of the posterior CDF at the truth, per
   parameter, Bonferroni-combined (``sbc_p``);
-* coverage of the central 50 % and 90 % intervals, pooled over parameters;
+* coverage of the central 50 % and 90 % intervals, pooled over parameters; for
+  emcee rows with both kinds of runs also the 90 % coverage of the runs that
+  converged (``cov90_conv``: is a failure hidden in runs that raise no
+  ConvergenceWarning?);
 * for the Laplace rows also the ML efficiency (1 / mean squared error in CRLB
   units, the worse of directions and intensities, over scenes with a regular
   Fisher matrix), the share of such scenes, and the accuracy of K selected by
@@ -165,6 +168,11 @@ def _cell_row(c, k: int) -> dict:
         row["ml_eff"] = float(1 / np.max(z2[reg].mean(axis=0))) if reg.any() else np.nan
         row["regular"] = float(reg.mean())
         row["sel_acc"] = float(np.mean(c["k_hat"].values == k))
+    conv = c["converged"].values[ok][answered] if u.size else np.zeros(0, bool)
+    if conv.any() and not conv.all():
+        # runs that raised no ConvergenceWarning: is the cell's miscoverage in them?
+        vals = ua[conv][np.isfinite(ua[conv])]
+        row["cov90_conv"] = float(_coverage(vals, 0.9).mean())
     rh = c["rhat"].values[ok]
     if np.isfinite(rh).any():
         row["rhat_max"] = float(np.nanmax(rh))
@@ -187,9 +195,10 @@ def summarise(results: dict) -> list[dict]:
 
 def print_table(rows: list[dict]) -> str:
     head = ["group", "method", "x", "snr", "n", "no_ans", "conv", "gap", "cov50", "cov90",
-            "sbc_p", "state", "ml_eff", "regular", "sel_acc", "cpu_s"]
+            "cov90c", "sbc_p", "state", "ml_eff", "regular", "sel_acc", "cpu_s"]
     body = [[r["group"], r["method"], f"{r['x_name'][:3]}={r['x']:g}", f"{r['snr']:g}", r["n"],
-             r["no_answer"], r["converged"], r["gap"], r["cov50"], r["cov90"], r["sbc_p"],
+             r["no_answer"], r["converged"], r["gap"], r["cov50"], r["cov90"],
+             r.get("cov90_conv", ""), r["sbc_p"],
              r["state"] or "-", r.get("ml_eff", ""), r.get("regular", ""),
              r.get("sel_acc", ""), r["cpu_s"]] for r in rows]
     return table(head, body, digits=2)
