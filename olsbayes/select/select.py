@@ -38,12 +38,14 @@ from .engine import (
     mixture_work,
     nested_work,
     noise_work,
+    quadrature_work,
     ridge_work,
 )
 from .fits import fit_all
 from .mixture import MAX_SOURCES
 from .nested_error import scaled_maxcall
 from .options import SelectOptions
+from .quadrature import qualifies
 from .result import SelectionResult
 from .scene_priors import prior_factory
 
@@ -264,10 +266,12 @@ def _evidence(model: Model, data: np.ndarray, k: int, fitted: dict, prior: Scene
 def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.ndarray,
               scene_priors: dict[int, ScenePrior], options: SelectOptions,
               streams: list[list[np.random.Generator]], bar) -> dict[int, str]:
-    """``auto``: recompute the K in doubt by nested sampling, most probable first.
+    """``auto``: recompute the K in doubt, most probable first.
 
-    ``works`` is updated in place; returns {K: why} of the K sent.  ``bar``: the
-    status line.
+    By quadrature where it is exact and within its budget
+    (``options.decision.quadrature``, :mod:`olsbayes.select.quadrature`), else by
+    nested sampling.  ``works`` is updated in place; returns {K: why} of the K
+    sent.  ``bar``: the status line.
     """
     escalated: dict[int, str] = {}
     while len(escalated) < options.decision.max_escalations:
@@ -277,8 +281,17 @@ def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.nda
         k, why = nxt
         escalated[k] = why
         bar.total += 1
-        bar.set_postfix_str(f"K = {k}: nested sampling (the evidence is in doubt)")
-        works[k] = nested_work(model, data, works[k], scene_priors[k], options.nested,
-                               rng=streams[k][1], progress=not bar.disable)
+        exact = options.decision.quadrature and qualifies(model, scene_priors[k])
+        if exact:
+            bar.set_postfix_str(f"K = {k}: quadrature (the evidence is in doubt)")
+            exact = quadrature_work(model, data, works, k, scene_priors[k], rng=streams[k][2])
+            if isinstance(exact, KWork):
+                works[k] = exact
+        if not isinstance(exact, KWork):
+            bar.set_postfix_str(f"K = {k}: nested sampling (the evidence is in doubt)")
+            works[k] = nested_work(model, data, works[k], scene_priors[k], options.nested,
+                                   rng=streams[k][1], progress=not bar.disable)
+            if exact:
+                escalated[k] = f"{why} (quadrature not used: {exact})"
         bar.update(1)
     return escalated
