@@ -18,9 +18,9 @@ their centre (an upper bound of the likelihood over the intensities) with a
 slack for the likelihood's curvature across a cell, the kept cells are split
 into fine cells of about one posterior width (from the ML fits' Fisher
 information), fine cells within ``margin`` nats of the best are kept, and each
-gets ``per_cell`` uniform draws.  The stratified estimate of Z carries its own
-standard error; cells dropped by the screen hold less than ``e^-margin`` of
-the best cell's mass each.
+gets ``per_cell`` uniform draws (more where the error is above 2 %).  The
+stratified estimate of Z carries its own standard error; cells dropped by the
+screen hold less than ``e^-margin`` of the best cell's mass each.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ _SAFETY = 4.0       # curvature slack of the coarse screen, in units of its quad
 _COARSE = 8.0       # coarse cell width in narrowest posterior widths
 _FINE = (0.25, 2.0)  # fine cell width in narrowest posterior widths, K = 1 and 2
 _PER_CELL = 2       # uniform draws per fine cell (>= 2 for the within-cell variance)
+_TARGET = 0.02      # relative error beyond which the cells get more draws (within budget)
 _BYTES_PER_CELL = 8.0 * 12
 _MAX_CELLS = 2**20   # cells per level (beyond: a cost out of proportion; nested sampling)
 
@@ -190,8 +191,8 @@ def _log_integrand(model, data: np.ndarray, theta: np.ndarray, lo: float, hi: fl
                    ) -> tuple[np.ndarray, np.ndarray]:
     """log of int L(theta, I) p(I) dI at directions ``theta`` (n, K), and its rounding.
 
-    Returns ``(log_f, err)``: ``err`` (n,) bounds the absolute error of
-    ``exp(log_f - max(log_f))`` from the box probability's rounding.  Directions
+    Returns ``(log_f, log_err)``: ``exp(log_err)`` (n,) bounds the absolute error
+    of ``exp(log_f)`` from the box probability's rounding.  Directions
     whose Gram matrix is singular to rounding (coincident sources, a null set)
     get ``-inf``.
     """
@@ -211,9 +212,9 @@ def _log_integrand(model, data: np.ndarray, theta: np.ndarray, lo: float, hi: fl
                 + 0.5 * k * math.log(2 * math.pi * s2) - 0.5 * np.log(np.where(ok, det, 1.0))
                 - k * math.log(hi - lo))
     log_p, abs_err = box_log_prob(i_hat, s2 * inv, lo, hi)
-    log_f = np.where(ok, log_rest + log_p, -np.inf)
-    top = np.max(log_f) if np.any(ok) else 0.0
-    return log_f, np.where(ok, np.exp(log_rest - top) * abs_err, 0.0)
+    with np.errstate(divide="ignore"):
+        return (np.where(ok, log_rest + log_p, -np.inf),
+                np.where(ok & (abs_err > 0), log_rest + np.log(abs_err), -np.inf))
 
 
 def _narrowest_width(model, fits: list[np.ndarray]) -> float:
@@ -300,7 +301,8 @@ def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.
     margin : float
         Fine cells more than ``margin`` nats below the best are dropped (> 0).
     per_cell : int
-        Draws per fine cell (>= 2).
+        Draws per fine cell (>= 2); every cell gets more, pooled with these, when
+        the relative error exceeds ``_TARGET`` (2 %) and the budget allows.
 
     Returns
     -------
@@ -322,17 +324,35 @@ def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.
     if isinstance(found, str):
         return QuadratureEvidence(math.nan, math.nan, 0, 0, time.perf_counter() - t0, found)
     cells, n1 = found
-    w1 = 2 * math.pi / n1
-    cells = np.repeat(cells, per_cell, axis=0)
-    theta = -math.pi + w1 * (cells + rng.uniform(size=cells.shape))
-    lo, hi = prior.intensity.lo, prior.intensity.hi
-    log_f, err = _log_integrand(model, data, theta, lo, hi)
-    top = np.max(log_f)
-    f = np.exp(log_f - top).reshape(-1, per_cell)
+    lo, hi, w1 = prior.intensity.lo, prior.intensity.hi, 2 * math.pi / n1
+
+    def draws(m: int) -> tuple[np.ndarray, np.ndarray]:
+        rep = np.repeat(cells, m, axis=0)
+        theta = -math.pi + w1 * (rep + rng.uniform(size=rep.shape))
+        return tuple(v.reshape(len(cells), m)
+                     for v in _log_integrand(model, data, theta, lo, hi))
+
+    log_f, log_err = draws(per_cell)
+    rel = _stratified(log_f, log_err)[1]
+    more = math.ceil(per_cell * (rel / _TARGET) ** 2) - per_cell
+    if more > 0 and len(cells) * (per_cell + more) <= _MAX_CELLS:
+        extra = draws(more)  # pooled with the first draws
+        log_f, log_err = (np.concatenate([a, b], axis=1) for a, b in zip((log_f, log_err),
+                                                                          extra))
+    log_total, rel = _stratified(log_f, log_err)
+    log_z = float(log_total + k * math.log(w1 / (2 * math.pi)))
+    return QuadratureEvidence(log_z, rel, len(cells), n1, time.perf_counter() - t0)
+
+
+def _stratified(log_f: np.ndarray, log_err: np.ndarray) -> tuple[float, float]:
+    """log of the sum over cells of the in-cell mean of f (M, m), and its relative error.
+
+    The error: the stratified sampling error (within-cell variances) plus the
+    box probabilities' rounding.
+    """
+    top = float(np.max(log_f))
+    f, m = np.exp(log_f - top), log_f.shape[1]
     total = float(np.sum(f.mean(axis=1)))
-    var = float(np.sum(f.var(axis=1, ddof=1)) / per_cell)
-    rel = (math.sqrt(var) + float(np.sum(err)) / per_cell) / total
-    log_z = float(top + math.log(total) + k * math.log(w1 / (2 * math.pi)))
-    return QuadratureEvidence(log_z, rel, len(f), n1, time.perf_counter() - t0)
-
-
+    var = float(np.sum(f.var(axis=1, ddof=1)) / m)
+    rounding = float(np.sum(np.exp(log_err - top))) / m
+    return top + math.log(total), (math.sqrt(var) + rounding) / total

@@ -8,10 +8,12 @@ source at intensity 0 with a free location, a singular Fisher matrix, a weak or
 close source) the evidence is computed instead by importance sampling over the
 source locations with the intensities integrated analytically
 (:mod:`olsbayes.select.mixture`); Laplace is kept where it is trusted (within 0.3
-nats of nested sampling there).  ``method="auto"`` then recomputes by nested
-sampling only the competing K whose Laplace value is not to be trusted (whatever
-replaced it), or whose comparison with the best K is not decisive (at most
-``max_escalations`` K, most probable first; :mod:`olsbayes.select.decide`).
+nats of nested sampling there).  ``method="auto"`` then recomputes only the
+competing K whose Laplace value is not to be trusted (whatever replaced it), or
+whose comparison with the best K is not decisive (at most ``max_escalations`` K,
+most probable first; :mod:`olsbayes.select.decide`): by quadrature where it is
+exact (K <= 2 ring sources, uniform directions, box intensity priors;
+:mod:`olsbayes.select.quadrature`), else by nested sampling.
 Finally p(K | data) is proportional to Z_K p(K), and the chosen K is the
 *smallest* K within ``tie`` nats of the most probable one: when the data barely
 prefer more sources, the simpler scene is reported (and a note says so).
@@ -156,9 +158,12 @@ def select_k(
         data (:func:`olsbayes.priors.data_intensity_bound`).  Not with ``priors``.
     method : {"auto", "laplace", "nested", "bic", "aic"}
         Evidence estimator: Laplace everywhere (importance sampling where it is
-        not to be trusted); nested sampling (dynesty) for every K >= 1; Laplace
-        then nested sampling for the K in doubt (``auto``); or the
-        pseudo-evidences -BIC/2, -AIC/2 (Akaike/Schwarz weights).
+        not to be trusted); nested sampling (dynesty) for every K >= 1, also
+        where the quadrature would apply; Laplace then, for the K in doubt, the
+        quadrature (K <= 2 ring sources with uniform directions and
+        Uniform(lo, hi) intensities; ``DecisionOptions(quadrature=False)`` turns
+        it off) or nested sampling (``auto``); or the pseudo-evidences -BIC/2,
+        -AIC/2 (Akaike/Schwarz weights).
     options : SelectOptions, optional
         Laplace trust thresholds and importance sampling, nested-sampling
         settings, the escalation and decision rule, the ML fits; default

@@ -72,18 +72,23 @@ def test_one_source_matches_scipy_double_quadrature():
                          ids=["separated", "close"])
 def test_two_sources_match_the_reference_within_the_stated_errors(scene):
     """Against the reference quadrature (intensities by importance draws): the combined
-    stated error covers the difference (|z| < 2) in >= 80 % of the seeds."""
+    stated error covers the difference (|z| < 2) in >= 80 % of the seeds, and the
+    seeds' scatter is of the size of the stated error (the sd of 20 values lies within
+    0.5..1.5 times the true one with probability 0.999)."""
     model = Model(Ring(30), 0.05)
     data = model.simulate(np.array(scene), rng=np.random.default_rng(3))
     fits = [fit_ml(model, data, k, rng=1, warn=False).params for k in (1, 2)]
     ref, ref_se = exact_log_evidence(model, data, 2, 2.0, 0, ngrid=512, per_cell=8)
     prior = ScenePrior(model, 2, Uniform(0.0, 2.0))
-    z = []
-    for seed in range(5):
+    z, values, errors = [], [], []
+    for seed in range(20):
         got = quad.ring_log_evidence(model, data, prior, fits, rng=np.random.default_rng(seed))
         assert 0 < got.error < 0.05
         z.append((got.log_evidence - ref) / math.hypot(got.error, ref_se))
+        values.append(got.log_evidence)
+        errors.append(got.error)
     assert np.mean(np.abs(z) < 2) >= 0.8, z
+    assert 0.5 < np.std(values, ddof=1) / np.mean(errors) < 1.5
 
 
 def test_bad_input_is_refused():
@@ -130,3 +135,28 @@ def test_auto_uses_quadrature_and_falls_back_to_nested_sampling(monkeypatch):
     off = select_k(model, data, k_max=1, rng=3, i_max=2.0, progress=False,
                    options=SelectOptions(decision=DecisionOptions(quadrature=False)))
     assert off[1].method == "nested" and "quadrature" not in off.escalated[1]
+
+
+def test_one_source_matches_the_existing_evidence_tests_truths():
+    """The 2-D trapezoid grid of test_evidence (Ring(30), sigma 0.02, a source at 0) and
+    the reference grid of test_nested_error (Ring(16), sigma 0.05, a weak source)."""
+    model = Model(Ring(30), 0.02)
+    prior = ScenePrior(model, 1, Uniform(0.0, 2.0))
+    data = model.simulate(np.array([0.0, 1.0]), rng=np.random.default_rng(3))
+    fit = fit_ml(model, data, 1)
+    sd = np.sqrt(np.diag(np.linalg.inv(model.fisher(fit.params))))
+    th = fit.params[0] + np.linspace(-12, 12, 801) * sd[0]
+    inten = fit.params[1] + np.linspace(-12, 12, 801) * sd[1]
+    x = np.stack(np.meshgrid(th, inten, indexing="ij"), axis=-1)
+    logf = model.log_likelihood(x, data) + prior.log_prob(x)
+    top = logf.max()
+    grid = math.log(np.trapezoid(np.trapezoid(np.exp(logf - top), inten, axis=1), th)) + top
+    got = quad.ring_log_evidence(model, data, prior, [fit.params], rng=np.random.default_rng(1))
+    assert abs(got.log_evidence - grid) < 3 * got.error + 1e-4
+    model = Model(Ring(16), 0.05)
+    prior = ScenePrior(model, 1, Uniform(0.0, 2.0))
+    data = model.simulate(np.array([0.7, 0.3]), rng=np.random.default_rng(100))
+    ref, ref_se = exact_log_evidence(model, data, 1, 2.0, 11)
+    got = quad.ring_log_evidence(model, data, prior, [fit_ml(model, data, 1).params],
+                                 rng=np.random.default_rng(1))
+    assert abs(got.log_evidence - ref) < 3 * math.hypot(got.error, ref_se)
