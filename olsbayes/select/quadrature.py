@@ -49,6 +49,7 @@ _PER_CELL = 2       # uniform draws per fine cell (>= 2 for the within-cell vari
 _TARGET = 0.02      # relative error beyond which the cells get more draws (within budget)
 _BYTES_PER_CELL = 8.0 * 12
 _MAX_CELLS = 2**20   # cells per level (beyond: a cost out of proportion; nested sampling)
+_CHUNK = 2**15       # draws evaluated at once (their responses: _CHUNK x K x N floats)
 
 
 @dataclass(frozen=True)
@@ -310,14 +311,7 @@ def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.
         NaN with ``why`` when no width is defined or the grid exceeds the budget.
     """
     t0 = time.perf_counter()
-    if not qualifies(model, prior):
-        raise InputError(f"ring_log_evidence needs a plain ring model and a scene prior of "
-                         f"1 or 2 sources with uniform directions and Uniform intensities; "
-                         f"got {prior!r}")
-    if not (margin > 0 and int(per_cell) == per_cell >= 2):
-        raise InputError(f"margin must be > 0 and per_cell an integer >= 2; got {margin!r}, "
-                         f"{per_cell!r}")
-    data, k = np.asarray(data, float), prior.n_sources
+    data, k = _check(model, data, prior, margin, per_cell), prior.n_sources
     sd = _narrowest_width(model, fits)
     found = ("no finite Fisher information at the ML fits" if not sd > 0
              else _screen_cells(model, data, k, sd, margin))
@@ -329,12 +323,16 @@ def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.
     def draws(m: int) -> tuple[np.ndarray, np.ndarray]:
         rep = np.repeat(cells, m, axis=0)
         theta = -math.pi + w1 * (rep + rng.uniform(size=rep.shape))
-        return tuple(v.reshape(len(cells), m)
-                     for v in _log_integrand(model, data, theta, lo, hi))
+        parts = [_log_integrand(model, data, theta[i:i + _CHUNK], lo, hi)
+                 for i in range(0, len(theta), _CHUNK)]  # bounded memory per pass
+        return tuple(np.concatenate(v).reshape(len(cells), m) for v in zip(*parts))
 
     log_f, log_err = draws(per_cell)
+    if not np.any(np.isfinite(log_f)):  # every draw on coincident directions (a null set)
+        return QuadratureEvidence(math.nan, math.nan, len(cells), n1,
+                                  time.perf_counter() - t0, "no draw off the diagonal")
     rel = _stratified(log_f, log_err)[1]
-    more = math.ceil(per_cell * (rel / _TARGET) ** 2) - per_cell
+    more = math.ceil(per_cell * min(rel / _TARGET, 1e3) ** 2) - per_cell
     if more > 0 and len(cells) * (per_cell + more) <= _MAX_CELLS:
         extra = draws(more)  # pooled with the first draws
         log_f, log_err = (np.concatenate([a, b], axis=1) for a, b in zip((log_f, log_err),
@@ -342,6 +340,23 @@ def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.
     log_total, rel = _stratified(log_f, log_err)
     log_z = float(log_total + k * math.log(w1 / (2 * math.pi)))
     return QuadratureEvidence(log_z, rel, len(cells), n1, time.perf_counter() - t0)
+
+
+def _check(model, data: object, prior: object, margin: object, per_cell: object) -> np.ndarray:
+    """The readings (N,) as floats, after checking every argument of ring_log_evidence."""
+    if not qualifies(model, prior):
+        raise InputError(f"ring_log_evidence needs a plain ring model and a scene prior of "
+                         f"1 or 2 sources with uniform directions and Uniform intensities; "
+                         f"got {prior!r}")
+    if not (isinstance(margin, (int, float)) and margin > 0
+            and isinstance(per_cell, (int, np.integer)) and per_cell >= 2):
+        raise InputError(f"margin must be > 0 and per_cell an integer >= 2; got {margin!r}, "
+                         f"{per_cell!r}")
+    data = np.asarray(data, dtype=float)
+    if data.shape != (model.n_sensors,) or not np.all(np.isfinite(data)):
+        raise InputError(f"data must be {model.n_sensors} finite readings; got shape "
+                         f"{data.shape}")
+    return data
 
 
 def _stratified(log_f: np.ndarray, log_err: np.ndarray) -> tuple[float, float]:

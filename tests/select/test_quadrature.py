@@ -160,3 +160,16 @@ def test_one_source_matches_the_existing_evidence_tests_truths():
     got = quad.ring_log_evidence(model, data, prior, [fit_ml(model, data, 1).params],
                                  rng=np.random.default_rng(1))
     assert abs(got.log_evidence - ref) < 3 * math.hypot(got.error, ref_se)
+
+
+def test_bad_readings_and_options_are_refused_before_work():
+    model = Model(Ring(30), 0.05)
+    prior = ScenePrior(model, 1, Uniform(0.0, 2.0))
+    fit = [np.array([0.0, 1.0])]
+    for data, match in ((np.zeros(29), "30 finite readings"),
+                        (np.full(30, np.nan), "30 finite readings")):
+        with pytest.raises(InputError, match=match):
+            quad.ring_log_evidence(model, data, prior, fit, rng=np.random.default_rng(0))
+    with pytest.raises(InputError, match="margin"):
+        quad.ring_log_evidence(model, np.zeros(30), prior, fit, rng=np.random.default_rng(0),
+                               margin=-1.0)
