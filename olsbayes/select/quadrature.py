@@ -45,10 +45,12 @@ _MARGIN = 25.0      # nats below the best cell from which fine cells are dropped
 _SAFETY = 4.0       # curvature slack of the coarse screen, in units of its quadratic estimate
 _COARSE = 8.0       # coarse cell width in narrowest posterior widths
 _FINE = (0.25, 2.0)  # fine cell width in narrowest posterior widths, K = 1 and 2
+_WIDEST = 8.0       # the widest fine cells, in narrowest posterior widths, within budget
 _PER_CELL = 2       # uniform draws per fine cell (>= 2 for the within-cell variance)
 _TARGET = 0.02      # relative error beyond which the cells get more draws (within budget)
-_BYTES_PER_CELL = 8.0 * 12
+_BYTES_PER_CELL = 8.0 * 20
 _MAX_CELLS = 2**20   # cells per level (beyond: a cost out of proportion; nested sampling)
+_MAX_DRAWN = 2**17   # fine cells that get draws (beyond: wider fine cells)
 _CHUNK = 2**15       # draws evaluated at once (their responses: _CHUNK x K x N floats)
 
 
@@ -242,7 +244,8 @@ def _gains(model, data: np.ndarray, width: float, idx: np.ndarray) -> np.ndarray
     if idx.shape[1] == 1:
         return projection_gain(gd[idx[:, 0]], None, a[idx[:, 0]])
     i, j = idx[:, 0], idx[:, 1]
-    b = np.einsum("ms,ms->m", g[i], g[j])
+    b = np.concatenate([np.einsum("ms,ms->m", g[i[c:c + _CHUNK]], g[j[c:c + _CHUNK]])
+                        for c in range(0, len(i), _CHUNK)])  # bounded memory per pass
     return projection_gain(gd[i], gd[j], a[i], a[j], b)
 
 
@@ -257,29 +260,44 @@ def _refine(kept: np.ndarray, r: int) -> np.ndarray:
     return (kept[:, None, :] * r + sub[None, :, :]).reshape(-1, kept.shape[1])
 
 
+def _slack(k: int, width: float, sd: float) -> float:
+    """Curvature slack (nats): the largest drop of log L from a cell's best point to its centre.
+
+    ``_SAFETY`` times the quadratic estimate ``0.5 K (width / 2)^2 / sd^2`` at the
+    largest curvature ``1 / sd^2``.
+    """
+    return _SAFETY * 0.5 * k * (0.5 * width / sd) ** 2
+
+
 def _screen_cells(model, data: np.ndarray, k: int, sd: float, margin: float
                   ) -> tuple[np.ndarray, int] | str:
     """Fine cells (m, K) worth integrating and the fine grid size, or why none.
 
-    Coarse cells of ~``_COARSE`` sd are kept when their centre's bound is within
-    ``margin`` plus a curvature slack of the best; their fine cells (~``_FINE``
-    sd) when within ``margin`` of the best fine centre.
+    Coarse cells of ~``_COARSE`` sd (fewer when the grid would exceed the cell
+    budget) are kept when their centre's bound is within ``margin`` plus the
+    curvature slack of the best; each is split into r^K fine cells of ~``_FINE`` sd,
+    kept on the same rule.  Where the fine cells would exceed the budget, or more
+    than ``_MAX_DRAWN`` are kept, r is halved, down to cells of ``_WIDEST`` sd (a
+    larger stated error, which the caller checks).
     """
     budget = min(memory_limit() / _BYTES_PER_CELL, _MAX_CELLS)
-    n0 = max(64, math.ceil(2 * math.pi / (_COARSE * sd)))
-    r = max(1, math.ceil(2 * math.pi / n0 / (_FINE[k - 1] * sd)))
-    if float(n0) ** k > budget:
-        return f"coarse grid of {n0}^{k} cells beyond the budget of {budget:.3g} cells"
+    n0 = min(max(64, math.ceil(2 * math.pi / (_COARSE * sd))), int(budget ** (1 / k)))
     s2, w0 = 2 * model.sigma**2, 2 * math.pi / n0
     cells = _grid(k, n0)
     ll = _gains(model, data, w0, cells) / s2
-    slack = _SAFETY * 0.5 * k * (0.5 * w0 / sd) ** 2
-    kept = cells[ll >= np.max(ll) - margin - slack]
-    if float(len(kept)) * r**k > budget:
-        return f"{len(kept)} x {r}^{k} fine cells beyond the budget of {budget:.3g} cells"
-    fine, n1 = _refine(kept, r), n0 * r
-    ll = _gains(model, data, 2 * math.pi / n1, fine) / s2
-    return fine[ll >= np.max(ll) - margin], n1
+    kept = cells[ll >= np.max(ll) - margin - _slack(k, w0, sd)]
+    r, r_min = (max(1, math.ceil(w0 / (f * sd))) for f in (_FINE[k - 1], _WIDEST))
+    while True:
+        if float(len(kept)) * r**k <= budget:
+            fine, n1 = _refine(kept, r), n0 * r
+            ll = _gains(model, data, 2 * math.pi / n1, fine) / s2
+            fine = fine[ll >= np.max(ll) - margin - _slack(k, 2 * math.pi / n1, sd)]
+            if len(fine) <= _MAX_DRAWN:
+                return fine, n1
+        if r <= r_min:
+            return (f"{len(kept)} coarse cells of {n0}^{k} kept, beyond the budget of "
+                    f"{min(budget, _MAX_DRAWN):.3g} fine cells of {_WIDEST:g} sd")
+        r = max(r_min, r // 2)
 
 
 def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.ndarray], *,

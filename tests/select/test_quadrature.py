@@ -123,7 +123,7 @@ def test_auto_uses_quadrature_and_falls_back_to_nested_sampling(monkeypatch):
                                                                            lap[1].error)
     import olsbayes.select.select as sel
 
-    monkeypatch.setattr(quad, "_MAX_CELLS", 10)
+    monkeypatch.setattr(quad, "_MAX_DRAWN", 0)
     out = quad.ring_log_evidence(model, data, ScenePrior(model, 1, Uniform(0.0, 2.0)),
                                  [res[1].params], rng=np.random.default_rng(0))
     assert math.isnan(out.log_evidence) and "budget" in out.why
