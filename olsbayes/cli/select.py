@@ -8,7 +8,7 @@ terms as for ``olsbayes fit`` (with ``[noise] frames = true`` the rows are frame
 of one scene, selected jointly); [prior] sets the intensity prior (intensity,
 i_max), an unknown sigma's prior and the prior on K (k_prior, k_mean).  Prints, per
 reading row, a table of K, log Z, its error, the estimator and p(K | data), the
-K sent to nested sampling and why.  Long steps (importance and nested sampling)
+K sent to quadrature or nested sampling and why.  Long steps (importance and nested sampling)
 show a status line on stderr (--quiet: none).  The ML points in the JSON (``params``) give
 angles in the [scene] angle_unit.
 
@@ -69,8 +69,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--k-max", type=int, default=None, metavar="K",
                    help="largest number of sources considered (default 4)")
     p.add_argument("--method", choices=METHODS, default=None,
-                   help="evidence estimator (default auto: Laplace, nested sampling where "
-                        "Laplace is not to be trusted)")
+                   help="evidence estimator (default auto: Laplace, then quadrature (K <= 2 "
+                        "ring sources) or nested sampling where Laplace is not to be trusted)")
     p.add_argument("--i-max", type=float, default=None, metavar="I",
                    help="upper end of the uniform intensity prior (default: from the data)")
     p.add_argument("--maxcall", type=int, default=None, metavar="M",

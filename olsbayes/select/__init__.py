@@ -2,7 +2,7 @@
 
 :func:`select_k` returns a :class:`SelectionResult` (log Z_K +- error per K,
 p(K | data), the chosen K, per-K ML fits and diagnostics, which K were sent to
-nested sampling and why, ``table()``).
+quadrature or nested sampling and why, ``table()``).
 
 Estimators
     * K = 0 (noise only): closed form, :func:`noise_log_evidence`.
@@ -23,24 +23,30 @@ Estimators
       untrusted or undefined Laplace value (intensity at its bound 0 with a free
       location, singular Fisher matrix, weak or close sources), checked against
       the exact grid evidence of 1-2 ring sources.
+    * quadrature for K <= 2 ring sources with uniform directions and
+      Uniform(lo, hi) intensities, sigma known (:func:`ring_log_evidence`):
+      intensities integrated exactly (normal / bivariate-normal box
+      probabilities), directions on a screened grid with stratified draws and a
+      stated error; what ``auto`` uses for such a K in doubt.
     * one-mode importance sampling (:func:`importance_log_evidence`): a precise
       reference for the Laplace value where the modes are apart.
     * BIC / AIC pseudo-evidences, and PSIS-LOO over sub-sensors
       (:func:`loo_compare`) as a predictive cross-check.
 
 Decision (:mod:`olsbayes.select.decide`)
-    ``auto`` computes Laplace for every K, then runs nested sampling only for
-    the K in doubt (at most ``max_escalations``): Laplace untrusted (singular or
-    ill-conditioned Fisher matrix, sources < 2 sensor spacings apart, weak
-    sources, ML not converged) within ``decisive`` nats of the best, trusted
-    values near the decision boundary, or a neighbour of the best K without a
-    Laplace value -- but not a K above the best whose ML fit gains < ``min_gain``
-    nats (an extra source that fits noise; nor the best K for its comparison with
-    such a K), nor one whose likelihood maximum, an upper bound on its evidence,
-    already loses decisively.  The chosen K is the smallest within
-    ``tie`` nats of the most probable: on this sensor an over-complete model
-    is never decisively worse (a source split in two within one sensor spacing
-    predicts exactly the same readings), so "more sources" must be earned.
+    ``auto`` computes Laplace for every K, then the quadrature (K <= 2 on a
+    ring, where it applies) or nested sampling only for the K in doubt (at most
+    ``max_escalations``): Laplace untrusted (singular or ill-conditioned Fisher
+    matrix, sources < 2 sensor spacings apart, weak sources, ML not converged)
+    within ``decisive`` nats of the best, trusted values near the decision
+    boundary, or a neighbour of the best K without a Laplace value -- but not a
+    K above the best whose ML fit gains < ``min_gain`` nats (an extra source
+    that fits noise; nor the best K for its comparison with such a K), nor one
+    whose likelihood maximum, an upper bound on its evidence, already loses
+    decisively. The chosen K is the smallest within ``tie`` nats of the most
+    probable: on this sensor an over-complete model is never decisively worse (a
+    source split in two within one sensor spacing predicts exactly the same
+    readings), so "more sources" must be earned.
 
 Settings (:mod:`olsbayes.select.options`)
     ``select_k(..., options=SelectOptions(laplace=LaplaceOptions(...),
@@ -67,6 +73,7 @@ from .mixture import MixtureEvidence, mixture_log_evidence
 from .nested import NestedEvidence, nested_log_evidence
 from .nested_error import RepeatedEvidence, repeated_log_evidence, scaled_maxcall
 from .options import DecisionOptions, LaplaceOptions, NestedOptions, SelectOptions
+from .quadrature import QuadratureEvidence, ring_log_evidence
 from .result import KEvidence, SelectionResult
 from .select import METHODS, select_k
 from .structure import (
@@ -97,6 +104,8 @@ __all__ = [
     "importance_log_evidence",
     "mixture_log_evidence",
     "MixtureEvidence",
+    "ring_log_evidence",
+    "QuadratureEvidence",
     "NestedEvidence",
     "repeated_log_evidence",
     "RepeatedEvidence",

@@ -1,14 +1,14 @@
-"""The decisions of select_k: which K ``auto`` sends to nested sampling, and which K wins.
+"""The decisions of select_k: which K ``auto`` escalates, and which K wins.
 
-``auto`` sends to nested sampling only the K in doubt (at most ``max_escalations``):
-a Laplace value that is untrusted, or trusted but near the decision boundary of a
-comparison that is not decisive, or a neighbour of the most probable K without
-a Laplace value -- never a K above the most probable one whose ML fit gains less
-than ``min_gain`` nats (an extra source fitting noise), nor one whose likelihood
-maximum, an upper bound on its evidence, already loses decisively, nor the most
-probable K when it leads every other K by twice ``decisive`` nats on an
-importance-sampling value (an unbiased estimate of Z: by Markov's inequality its
-lead is still decisive with probability >= 1 - e^-decisive).
+``auto`` escalates (to quadrature or nested sampling) only the K in doubt (at most
+``max_escalations``): a Laplace value that is untrusted, or trusted but near the
+decision boundary of a comparison that is not decisive, or a neighbour of the most
+probable K without a Laplace value -- never a K above the most probable one whose ML fit
+gains less than ``min_gain`` nats (an extra source fitting noise), nor one whose
+likelihood maximum, an upper bound on its evidence, already loses decisively, nor the
+most probable K when it leads every other K by twice ``decisive`` nats on an
+importance-sampling value (an unbiased estimate of Z: by Markov's inequality its lead is
+still decisive with probability >= 1 - e^-decisive).
 
 p(K | data) is proportional to Z_K p(K), and the chosen K is the *smallest* within
 ``tie`` nats of the most probable: on this sensor an over-complete model is never
@@ -27,8 +27,10 @@ from .engine import KWork, mixture_doubt
 from .options import DecisionOptions
 from .result import KEvidence, SelectionResult
 
-__all__ = ["next_escalation", "choose", "finish", "TRUSTED_MARGIN"]
+__all__ = ["next_escalation", "choose", "finish", "TRUSTED_MARGIN", "FINAL"]
 
+#: Evidence methods whose value is final (never escalated again): exact to its stated error.
+FINAL = ("nested", "quadrature")
 #: Nats within which a trusted Laplace comparison counts as at the decision boundary.
 TRUSTED_MARGIN = 1.0
 
@@ -83,7 +85,7 @@ def _doubtful(works: list[KWork], score: np.ndarray, rivals: list[int], top: int
         return out
     for k in rivals:
         w = works[k]
-        if k == 0 or w.method == "nested":
+        if k == 0 or w.method in FINAL:
             continue
         why = list(w.reasons)
         if len(rivals) > 1:
@@ -122,7 +124,7 @@ def next_escalation(works: list[KWork], log_pk: np.ndarray, decision: DecisionOp
     rivals = [k for k in competing if not _noise_only(works, k, top, decision.min_gain)]
     candidates = _doubtful(works, score, rivals, top, decision)
     for k in (top - 1, top + 1):  # a neighbour whose Laplace value does not exist
-        if (0 < k < len(works) and not finite[k] and works[k].method != "nested"
+        if (0 < k < len(works) and not finite[k] and works[k].method not in FINAL
                 and not _noise_only(works, k, top, decision.min_gain)
                 and _could_compete(works[k], log_pk[k], floor)):
             candidates.append((k, "Laplace undefined: " + "; ".join(works[k].reasons)))

@@ -22,9 +22,11 @@ from .mixture import mixture_log_evidence
 from .nested import NestedCheckpoint
 from .nested_error import repeated_log_evidence, scaled_maxcall
 from .options import NestedOptions
+from .quadrature import MAX_ERROR, ring_log_evidence
 
 __all__ = ["KWork", "noise_work", "laplace_work", "ridge_work", "mixture_work", "nested_work",
-           "information_criterion", "scalar_log_likelihood", "ScalarLogLikelihood",
+           "quadrature_work", "information_criterion", "scalar_log_likelihood",
+           "ScalarLogLikelihood",
            "scalar_prior_transform", "ScalarPriorTransform", "nested_key"]
 
 
@@ -283,6 +285,28 @@ def nested_work(model: Model, data: np.ndarray, work: KWork, prior, options: Nes
         return dataclasses.replace(work, reasons=work.reasons + (kept,), **cost)
     return dataclasses.replace(work, value=out.log_evidence, error=out.error, method="nested",
                                reasons=reasons, **cost)
+
+
+def quadrature_work(model: Model, data: np.ndarray, works: list[KWork], k: int, prior, *,
+                    rng: np.random.Generator) -> KWork | str:
+    """Replace K's evidence by the ring quadrature (Laplace and its reasons kept), or why not.
+
+    The Fisher information of the ML fits of K and of every smaller K sets the
+    grid (:func:`~olsbayes.select.quadrature.ring_log_evidence`).  Returns a
+    string instead when the grid exceeds its budget or the stated error exceeds
+    :data:`~olsbayes.select.quadrature.MAX_ERROR`.
+    """
+    out = ring_log_evidence(model, data, prior, [works[j].params for j in range(1, k + 1)],
+                            rng=rng)
+    if out.why:
+        return out.why
+    if not (np.isfinite(out.log_evidence) and out.error <= MAX_ERROR):
+        return f"quadrature error {out.error:.2g} nats > {MAX_ERROR:g}"
+    stats = {**(works[k].stats or {}), "quadrature_cells": float(out.n_cells),
+             "quadrature_grid": float(out.n_grid)}
+    return dataclasses.replace(works[k], value=out.log_evidence, error=out.error,
+                               method="quadrature", seconds=works[k].seconds + out.seconds,
+                               stats=stats)
 
 
 def information_criterion(model: Model, k: int, fitted: tuple, method: str,

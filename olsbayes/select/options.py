@@ -108,7 +108,7 @@ class NestedOptions:
 
 @dataclass(frozen=True)
 class DecisionOptions:
-    """Which K ``method="auto"`` sends to nested sampling, and which K is chosen.
+    """Which K ``method="auto"`` escalates (quadrature or nested sampling), which K wins.
 
     Attributes
     ----------
@@ -132,6 +132,13 @@ class DecisionOptions:
         >= 1 - e^-decisive, so nested sampling would change that K's log Z -- which
         importance sampling can put a few nats low near the resolution limit -- but
         not the choice of K).
+    quadrature : bool
+        ``auto`` computes the evidence of a K it escalates by quadrature instead of
+        nested sampling where that is exact (default True): K <= 2 sources on a ring
+        with Gaussian noise of known sd, uniform directions and intensities
+        Uniform(lo, hi) (:mod:`olsbayes.select.quadrature`).  Where its grid would
+        exceed its budget or its stated error exceeds
+        :data:`~olsbayes.select.quadrature.MAX_ERROR` nats, nested sampling is used.
     """
 
     decisive: float = math.log(100.0)
@@ -139,6 +146,7 @@ class DecisionOptions:
     max_escalations: int = 2
     min_gain: float = 3.0
     recheck_decisive: bool = False
+    quadrature: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "decisive", positive_float("decisive", self.decisive))
@@ -149,6 +157,8 @@ class DecisionOptions:
         if not isinstance(self.recheck_decisive, bool):
             raise InputError("recheck_decisive must be True or False; "
                              f"got {self.recheck_decisive!r}")
+        if not isinstance(self.quadrature, bool):
+            raise InputError(f"quadrature must be True or False; got {self.quadrature!r}")
 
 
 @dataclass(frozen=True)

@@ -31,12 +31,14 @@ class KEvidence:
         criteria the pseudo-evidence -BIC/2 or -AIC/2.
     error : float
         Its standard error (nats): 0 for a closed form, dynesty's ``logzerr`` for
-        nested sampling, the delta-method error of importance sampling, NaN where
+        nested sampling, the stratified-sampling error of the quadrature, the
+        delta-method error of importance sampling, NaN where
         no error is defined (Laplace, BIC, AIC).
     method : str
         ``"closed-form"``, ``"laplace"``, ``"importance"`` (mixture importance
         sampling over the locations, where Laplace is untrusted), ``"nested"``,
-        ``"bic"`` or ``"aic"``.
+        ``"quadrature"`` (exact up to its stated error: K <= 2 ring sources,
+        :mod:`olsbayes.select.quadrature`), ``"bic"`` or ``"aic"``.
     log_likelihood : float
         Maximum log-likelihood (of the ML fit; of the data for K = 0).
     n_params : int
@@ -115,7 +117,8 @@ class SelectionResult:
     evidences : tuple of KEvidence
         Per-K records (fits, diagnostics, cost).
     escalated : Mapping[int, str]
-        K whose evidence ``auto`` recomputed by nested sampling, and why.
+        K whose evidence ``auto`` recomputed (by quadrature or nested sampling,
+        ``evidences[K].method``), and why.
     notes : tuple of str
         Remarks on the decision (ties broken towards the smaller K, warnings).
     seconds : float

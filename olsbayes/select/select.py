@@ -8,10 +8,12 @@ source at intensity 0 with a free location, a singular Fisher matrix, a weak or
 close source) the evidence is computed instead by importance sampling over the
 source locations with the intensities integrated analytically
 (:mod:`olsbayes.select.mixture`); Laplace is kept where it is trusted (within 0.3
-nats of nested sampling there).  ``method="auto"`` then recomputes by nested
-sampling only the competing K whose Laplace value is not to be trusted (whatever
-replaced it), or whose comparison with the best K is not decisive (at most
-``max_escalations`` K, most probable first; :mod:`olsbayes.select.decide`).
+nats of nested sampling there).  ``method="auto"`` then recomputes only the
+competing K whose Laplace value is not to be trusted (whatever replaced it), or
+whose comparison with the best K is not decisive (at most ``max_escalations`` K,
+most probable first; :mod:`olsbayes.select.decide`): by quadrature where it is
+exact (K <= 2 ring sources, uniform directions, box intensity priors;
+:mod:`olsbayes.select.quadrature`), else by nested sampling.
 Finally p(K | data) is proportional to Z_K p(K), and the chosen K is the
 *smallest* K within ``tie`` nats of the most probable one: when the data barely
 prefer more sources, the simpler scene is reported (and a note says so).
@@ -38,12 +40,14 @@ from .engine import (
     mixture_work,
     nested_work,
     noise_work,
+    quadrature_work,
     ridge_work,
 )
 from .fits import fit_all
 from .mixture import MAX_SOURCES
 from .nested_error import scaled_maxcall
 from .options import SelectOptions
+from .quadrature import qualifies
 from .result import SelectionResult
 from .scene_priors import prior_factory
 
@@ -154,9 +158,12 @@ def select_k(
         data (:func:`olsbayes.priors.data_intensity_bound`).  Not with ``priors``.
     method : {"auto", "laplace", "nested", "bic", "aic"}
         Evidence estimator: Laplace everywhere (importance sampling where it is
-        not to be trusted); nested sampling (dynesty) for every K >= 1; Laplace
-        then nested sampling for the K in doubt (``auto``); or the
-        pseudo-evidences -BIC/2, -AIC/2 (Akaike/Schwarz weights).
+        not to be trusted); nested sampling (dynesty) for every K >= 1, also
+        where the quadrature would apply; Laplace then, for the K in doubt, the
+        quadrature (K <= 2 ring sources with uniform directions and
+        Uniform(lo, hi) intensities; ``DecisionOptions(quadrature=False)`` turns
+        it off) or nested sampling (``auto``); or the pseudo-evidences -BIC/2,
+        -AIC/2 (Akaike/Schwarz weights).
     options : SelectOptions, optional
         Laplace trust thresholds and importance sampling, nested-sampling
         settings, the escalation and decision rule, the ML fits; default
@@ -264,10 +271,12 @@ def _evidence(model: Model, data: np.ndarray, k: int, fitted: dict, prior: Scene
 def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.ndarray,
               scene_priors: dict[int, ScenePrior], options: SelectOptions,
               streams: list[list[np.random.Generator]], bar) -> dict[int, str]:
-    """``auto``: recompute the K in doubt by nested sampling, most probable first.
+    """``auto``: recompute the K in doubt, most probable first.
 
-    ``works`` is updated in place; returns {K: why} of the K sent.  ``bar``: the
-    status line.
+    By quadrature where it is exact and within its budget
+    (``options.decision.quadrature``, :mod:`olsbayes.select.quadrature`), else by
+    nested sampling.  ``works`` is updated in place; returns {K: why} of the K
+    sent.  ``bar``: the status line.
     """
     escalated: dict[int, str] = {}
     while len(escalated) < options.decision.max_escalations:
@@ -277,8 +286,17 @@ def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.nda
         k, why = nxt
         escalated[k] = why
         bar.total += 1
-        bar.set_postfix_str(f"K = {k}: nested sampling (the evidence is in doubt)")
-        works[k] = nested_work(model, data, works[k], scene_priors[k], options.nested,
-                               rng=streams[k][1], progress=not bar.disable)
+        exact = options.decision.quadrature and qualifies(model, scene_priors[k])
+        if exact:
+            bar.set_postfix_str(f"K = {k}: quadrature (the evidence is in doubt)")
+            exact = quadrature_work(model, data, works, k, scene_priors[k], rng=streams[k][2])
+            if isinstance(exact, KWork):
+                works[k] = exact
+        if not isinstance(exact, KWork):
+            bar.set_postfix_str(f"K = {k}: nested sampling (the evidence is in doubt)")
+            works[k] = nested_work(model, data, works[k], scene_priors[k], options.nested,
+                                   rng=streams[k][1], progress=not bar.disable)
+            if exact:
+                escalated[k] = f"{why} (quadrature not used: {exact})"
         bar.update(1)
     return escalated

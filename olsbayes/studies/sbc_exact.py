@@ -24,15 +24,11 @@ import numpy as np
 
 from .._validation import as_rng
 from ..errors import InputError
+from ..select.quadrature import projection_gain, unit_responses
 from ._work import trial_outputs, trial_settings
 from .sbc import _model, _prior
 
 __all__ = ["exact_ring_posterior", "weighted_cdf", "sbc_exact"]
-
-
-def _unit_responses(model, theta: np.ndarray) -> np.ndarray:
-    """Readings (n, N) of unit-intensity sources at angles ``theta`` (n,)."""
-    return model.response(np.stack([theta, np.ones_like(theta)], axis=-1))
 
 
 def _screen(model, data: np.ndarray, k: int, n_grid: int, margin: float) -> np.ndarray:
@@ -42,19 +38,14 @@ def _screen(model, data: np.ndarray, k: int, n_grid: int, margin: float) -> np.n
     grid's best (an upper bound: the box is ignored).
     """
     th = -np.pi + 2 * np.pi * np.arange(n_grid) / n_grid
-    g = _unit_responses(model, th)
+    g = unit_responses(model, th)
     gd = g @ data
     if k == 1:
-        q = gd**2 / np.einsum("ij,ij->i", g, g)
+        q = projection_gain(gd, None, np.einsum("ij,ij->i", g, g))
     else:
         gram = g @ g.T
-        a, c, b = np.diag(gram)[:, None], np.diag(gram)[None, :], gram
-        det = a * c - b * b
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = (c * gd[:, None] ** 2 - 2 * b * gd[:, None] * gd[None, :]
-                 + a * gd[None, :] ** 2) / det  # |projection of data on span(g_i, g_j)|^2
-        single = gd**2 / np.diag(gram)  # coincident directions: one source's projection
-        q = np.where(det > 1e-12 * a * c, q, np.maximum(single[:, None], single[None, :]))
+        a = np.diag(gram)
+        q = projection_gain(gd[:, None], gd[None, :], a[:, None], a[None, :], gram)
     ll = 0.5 * q / model.sigma**2
     return np.argwhere(ll > np.max(ll) - margin).reshape(-1, k)
 
@@ -101,7 +92,7 @@ def exact_ring_posterior(model, data: np.ndarray, n_sources: int, i_max: float, 
     cells = np.repeat(_screen(model, data, k, int(n_grid), float(margin)), per_cell, axis=0)
     n, h = len(cells), 2 * np.pi / n_grid
     theta = -np.pi + h * (cells + gen.uniform(-0.5, 0.5, cells.shape))  # (n, k)
-    g = _unit_responses(model, theta.ravel()).reshape(n, k, -1).swapaxes(1, 2)  # (n, N, k)
+    g = unit_responses(model, theta.ravel()).reshape(n, k, -1).swapaxes(1, 2)  # (n, N, k)
     gram = np.einsum("nsi,nsj->nij", g, g)
     sign, logdet = np.linalg.slogdet(gram)
     # two directions equal to rounding (a null set): G^T G is singular, the draw is dropped

@@ -13,7 +13,8 @@ import math
 import numpy as np
 from scipy.special import logsumexp
 
-from olsbayes.studies.sbc_exact import _screen, _unit_responses
+from olsbayes.select.quadrature import unit_responses as _unit_responses
+from olsbayes.studies.sbc_exact import _screen
 
 __all__ = ["exact_log_evidence"]
 

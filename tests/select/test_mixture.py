@@ -21,7 +21,7 @@ from olsbayes import Model, Ring
 from olsbayes.priors import default_priors
 from olsbayes.select import LaplaceOptions, SelectOptions, select_k
 from olsbayes.select.mixture import mixture_log_evidence
-from olsbayes.studies.sbc_exact import _unit_responses
+from olsbayes.select.quadrature import unit_responses as _unit_responses
 
 MODEL = Model(Ring(16), 0.05)
 I_MAX = 2.0

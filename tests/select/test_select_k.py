@@ -75,8 +75,8 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
     """A weak single source (I = 0.02, ~4.5 sd of I): K=1 wins but its Laplace value is
     not trusted.  method="laplace" replaces it by importance sampling over the location
     (no warning: that estimate is precise); the bare Laplace rule (importance_draws=0)
-    warns.  auto sends K=1 (and only K=1) to nested sampling, which agrees with the
-    importance-sampling value within 3 combined standard errors."""
+    warns.  auto (quadrature off) sends K=1 (and only K=1) to nested sampling, which
+    agrees with the importance-sampling value within 3 combined standard errors."""
     data = MODEL.simulate(np.array([0.3, 0.02]), rng=np.random.default_rng(4))
     with pytest.warns(EvidenceWarning, match="not to be trusted"):
         bare = select_k(MODEL, data, k_max=1, method="laplace", rng=3, i_max=2.0,
@@ -88,7 +88,8 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
     assert lap[1].laplace == pytest.approx(bare[1].log_evidence)
     nested = NestedOptions(n_live=50, maxcall=40_000, dlogz=0.5)
     res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0,
-                   options=SelectOptions(nested=nested))
+                   options=SelectOptions(nested=nested,
+                                         decision=DecisionOptions(quadrature=False)))
     assert list(res.escalated) == [1] and "weak source" in res.escalated[1]
     assert res[1].method == "nested" and 0 < res[1].error < 1
     assert res[1].laplace == pytest.approx(bare[1].log_evidence)
@@ -102,13 +103,15 @@ def test_auto_escalates_only_untrusted_k_and_says_why():
 @pytest.mark.filterwarnings("ignore:the chosen K = .* is k_max")  # the weak source wins
 def test_a_nested_run_stopped_by_the_call_cap_is_flagged_in_the_table():
     """The weak source's importance-sampling value is sound, so the capped (low-biased)
-    nested runs do not replace it; the cap is named in its reasons and the table."""
+    nested runs (quadrature off) do not replace it; the cap is named in its reasons and
+    the table."""
     from olsbayes.errors import ConvergenceWarning
 
     data = MODEL.simulate(np.array([0.3, 0.02]), rng=np.random.default_rng(4))
     with pytest.warns(ConvergenceWarning, match="maxcall"):
         res = select_k(MODEL, data, k_max=1, method="auto", rng=3, i_max=2.0,
-                       options=SelectOptions(nested=NestedOptions(n_live=50, maxcall=1000)))
+                       options=SelectOptions(nested=NestedOptions(n_live=50, maxcall=1000),
+                                             decision=DecisionOptions(quadrature=False)))
     assert list(res.escalated) == [1] and not res[1].trusted
     assert res[1].method == "importance"
     assert "nested sampling stopped at maxcall=1000 (3 of 3 runs)" in res[1].reasons[-1]
