@@ -286,17 +286,17 @@ def _escalate(model: Model, data: np.ndarray, works: list[KWork], log_pk: np.nda
         k, why = nxt
         escalated[k] = why
         bar.total += 1
-        exact = options.decision.quadrature and qualifies(model, scene_priors[k])
-        if exact:
+        work: KWork | str | None = None
+        if options.decision.quadrature and qualifies(model, scene_priors[k]):
             bar.set_postfix_str(f"K = {k}: quadrature (the evidence is in doubt)")
-            exact = quadrature_work(model, data, works, k, scene_priors[k], rng=streams[k][2])
-            if isinstance(exact, KWork):
-                works[k] = exact
-        if not isinstance(exact, KWork):
+            work = quadrature_work(model, data, works, k, scene_priors[k], rng=streams[k][2])
+            if isinstance(work, str):  # over budget, or its error too large
+                escalated[k] = f"{why} (quadrature not used: {work})"
+                work = None
+        if work is None:
             bar.set_postfix_str(f"K = {k}: nested sampling (the evidence is in doubt)")
-            works[k] = nested_work(model, data, works[k], scene_priors[k], options.nested,
-                                   rng=streams[k][1], progress=not bar.disable)
-            if exact:
-                escalated[k] = f"{why} (quadrature not used: {exact})"
+            work = nested_work(model, data, works[k], scene_priors[k], options.nested,
+                               rng=streams[k][1], progress=not bar.disable)
+        works[k] = work
         bar.update(1)
     return escalated
