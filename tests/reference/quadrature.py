@@ -3,7 +3,9 @@
 The intensities are integrated analytically for fixed directions (Gaussian
 likelihood, box prior) and the directions on a fine grid with stratified draws
 -- the construction of :mod:`olsbayes.studies.sbc_exact`, summed into log Z with
-its own Monte Carlo standard error.
+its own Monte Carlo standard error.  Written apart from the package's grid code
+(its screen solves the least-squares problem of every grid cell with numpy), so
+that :mod:`olsbayes.select.quadrature` is checked against code it does not share.
 """
 
 from __future__ import annotations
@@ -13,10 +15,31 @@ import math
 import numpy as np
 from scipy.special import logsumexp
 
-from olsbayes.select.quadrature import unit_responses as _unit_responses
-from olsbayes.studies.sbc_exact import _screen
-
 __all__ = ["exact_log_evidence"]
+
+
+def _unit_responses(model, theta: np.ndarray) -> np.ndarray:
+    """Readings (n, N) of unit-intensity sources at angles ``theta`` (n,)."""
+    return model.response(np.column_stack([theta, np.ones_like(theta)]))
+
+
+def _screen(model, data: np.ndarray, k: int, ngrid: int, margin: float) -> np.ndarray:
+    """Grid cells (m, k) whose unconstrained least-squares fit at the grid point is within
+    ``margin`` nats of the best (coincident directions: the one-source fit)."""
+    g = _unit_responses(model, -np.pi + 2 * np.pi * np.arange(ngrid) / ngrid)  # (n, N)
+    single = (g @ data) ** 2 / np.sum(g * g, axis=1)  # |projection|^2 on one direction
+    if k == 1:
+        gain = single
+    else:
+        i, j = np.triu_indices(ngrid, 1)
+        a = np.stack([g[i], g[j]], axis=-1)  # (pairs, N, 2)
+        gram = np.einsum("psi,psj->pij", a, a)
+        rhs = np.einsum("psi,s->pi", a, data)
+        pair = np.einsum("pi,pi->p", np.linalg.solve(gram, rhs[..., None])[..., 0], rhs)
+        gain = np.maximum.outer(single, single)
+        gain[i, j] = gain[j, i] = np.maximum(pair, gain[i, j])
+    ll = 0.5 * gain / model.sigma**2
+    return np.argwhere(ll > np.max(ll) - margin).reshape(-1, k)
 
 
 def exact_log_evidence(model, data: np.ndarray, k: int, i_max: float, seed: int,
