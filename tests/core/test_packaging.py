@@ -15,7 +15,7 @@ DISTRIBUTION = {"distributed": "distributed"}
 #: Used by name rather than imported: the NetCDF engine of xarray and ArviZ.
 ENGINES = {"h5netcdf"}
 #: Imported only by the optional Dask executor (the ``dask`` extra).
-OPTIONAL = {"distributed"}
+OPTIONAL = {"dask", "distributed"}
 
 
 def _imported_top_level() -> set[str]:
