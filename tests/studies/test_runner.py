@@ -443,4 +443,3 @@ def test_local_dask_workers_fork_from_the_package_fork_server():
     local = run_study(noise_check, GRID, 24, executor="dask", workers=2, rng=7, chunk_size=3,
                       progress=False)
     assert local.identical(_serial())
-
