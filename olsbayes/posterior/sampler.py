@@ -288,13 +288,12 @@ def _audit(run: _Run, result: PosteriorResult, plan, centre, t0: float, seed
     finds several modes; otherwise the alarm is a ConvergenceWarning.
     """
     options = run.options
+    point = None if centre is None else centre[:run.model.n_params(run.prior.n_sources)]
     if plan is None and centre is not None and not run.single:
         alarm = narrower_than_crlb(result)
         if alarm and options.multimodal is None and options.modes.crlb_alarm:
             what = ", ".join(f"{name} {ratio:.2f}x" for name, ratio, _ in alarm)
-            p_model = run.model.n_params(run.prior.n_sources)
-            modes, lp = find_modes(run.model, run.data, run.prior, centre[:p_model],
-                                   options.modes)
+            modes, lp = find_modes(run.model, run.data, run.prior, point, options.modes)
             if modes.shape[0] > 1:
                 plan = (modes, lp, f"posterior sd far below the CRLB ({what})")
                 fields, converged, calls = run.modes(plan, centre)
@@ -304,8 +303,7 @@ def _audit(run: _Run, result: PosteriorResult, plan, centre, t0: float, seed
     if plan is None:
         _warn_narrow(result)
         if options.multimodal is False and centre is not None and not run.single:
-            p_model = run.model.n_params(run.prior.n_sources)
-            mirrored = _warn_antipodal(run.model, centre[:p_model], options)
+            mirrored = _warn_antipodal(run.model, point, options)
     elif plan[2] != "requested":
         m = result.modes
         warnings.warn(
@@ -316,7 +314,7 @@ def _audit(run: _Run, result: PosteriorResult, plan, centre, t0: float, seed
             stacklevel=3,
         )
     if not mirrored and centre is not None and not run.single:
-        _warn_doubts(run.model, centre[:run.model.n_params(run.prior.n_sources)])
+        _warn_doubts(run.model, point)
     return result
 
 
