@@ -17,6 +17,7 @@ A chunk gives the same numbers wherever it runs (its trials' seeds are fixed).
 from __future__ import annotations
 
 import concurrent.futures as cf
+import importlib.util
 import multiprocessing
 import os
 import select
@@ -287,13 +288,17 @@ def _dask_backend(client: Any, closer: Callable[[], None] | None) -> Backend:
 
 
 def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError:  # pragma: no cover - depends on the environment
+    if importlib.util.find_spec("distributed") is None:  # pragma: no cover - environment
         raise InputError(
             "executor='dask' needs the optional dependency dask.distributed: "
             "pip install 'olsbayes[dask]'"
-        ) from None
+        )
+    if scheduler is None:  # the server imports while this process imports distributed
+        n_workers = _local_workers(workers)
+        _forkserver("distributed")
+        forkserver.ensure_running()  # started with the package, before distributed sets its list
+    from distributed import Client, LocalCluster
+
     if scheduler is not None:
         if not isinstance(scheduler, str) or not scheduler:
             raise InputError(f"scheduler must be an address such as 'tcp://host:8786'; "
@@ -305,10 +310,8 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
         return _dask_backend(client, client.close)
     import dask
 
-    _forkserver("distributed")
-    forkserver.ensure_running()  # started with the package, before distributed sets its list
     with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
-        cluster = LocalCluster(n_workers=_local_workers(workers), threads_per_worker=1,
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1,
                                processes=True, dashboard_address=":0")
     client = Client(cluster, set_as_default=False)
 

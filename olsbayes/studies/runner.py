@@ -355,6 +355,8 @@ def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tu
                     chunks[id(fut)] = (cell, idx)
                     pending.append(fut)
                     nxt = next(queue, None)
+                if backend.name != "serial":  # while the workers run the first chunks
+                    import xarray  # noqa: F401  (for _dataset; ~0.5-1 s the first time)
                 done, pending = backend.wait_first(pending)
                 for fut in done:
                     bar.update(_collect(fut, chunks.pop(id(fut)), study.grid, ckpt, results,
