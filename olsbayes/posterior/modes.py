@@ -74,8 +74,10 @@ class ModeOptions:
         near the resolution limit such scenes have flat valleys rather than
         separated modes, and the search returns points along a valley that the
         per-mode ensembles cannot keep apart (not calibrated there, and one
-        ensemble per point).  Near-antipodal pairs and the CRLB alarm always
-        trigger the search.
+        ensemble per point).  Near-antipodal pairs trigger the search unless
+        two sources of the ML point are closer than the resolution limit
+        (:data:`olsbayes.resolution.RESOLUTION_SPACINGS`: its configuration is
+        not pinned); the CRLB alarm always does.
     """
 
     antipodal_spacings: float = ANTIPODAL_SPACINGS

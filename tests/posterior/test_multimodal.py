@@ -245,3 +245,19 @@ def test_sampler_doubt_follows_the_ml_rule():
         warnings.simplefilter("error")
         _warn_doubts(model, separated)
         _warn_doubts(model, np.array([0.5, 1.0, 0.5 + np.pi, 0.2]))
+
+
+def test_near_antipodal_pair_at_a_crowded_ml_point_does_not_trigger_the_modes():
+    # a near-antipodal pair triggers the search for modes, unless two sources of the ML
+    # point are closer than the resolution limit: that point does not pin the
+    # configuration, and one ensemble covered such scenes far better on the map
+    from olsbayes.posterior.multimodal import trigger_reason
+    from olsbayes.resolution import RESOLUTION_SPACINGS
+
+    model = Model(Ring(30), sigma=1e-3)
+    h = 2 * np.pi / 30
+    for gap, expect in ((RESOLUTION_SPACINGS + 0.5, True), (RESOLUTION_SPACINGS - 0.5, False)):
+        x = np.array([0.0, 1.0, np.pi - 0.3 * h, 0.8, np.pi / 2, 1.1, np.pi / 2 + gap * h, 0.9])
+        assert len(antipodal_pairs(model, x)) == 1
+        reason = trigger_reason(model, x, np.nan, ModeOptions())
+        assert ("near-antipodal" in reason) is expect, (gap, reason)
