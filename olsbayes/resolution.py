@@ -42,8 +42,8 @@ import numpy as np
 from .circular import wrap_angle
 from .errors import NearResolutionWarning
 
-__all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "RESOLUTION_SPACINGS",
-           "WEAK_SDS", "ANTIPODAL_DOUBT"]
+__all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "min_separation",
+           "RESOLUTION_SPACINGS", "WEAK_SDS", "ANTIPODAL_DOUBT"]
 
 #: Sources closer than this many sensor spacings are near the resolution limit.
 RESOLUTION_SPACINGS = 1.5
@@ -62,7 +62,7 @@ CLOSE_ADVICE = (
     "its separation is not, so compare one source fewer before reading per-source errors")
 
 
-def _min_separation(model, x: np.ndarray) -> np.ndarray:
+def min_separation(model, x: np.ndarray) -> np.ndarray:
     """Smallest source-to-source distance of each row of ``x`` (T, P), in sensor spacings."""
     from .select.diagnostics import sensor_spacing
 
@@ -111,7 +111,7 @@ def gaussian_doubts(model, x: np.ndarray, cov: np.ndarray) -> dict[str, np.ndarr
     sd = np.sqrt(np.where(finite[:, None], var, 1.0))
     width = model.n_loc + 1
     weak = np.any(x[:, width - 1::width] < WEAK_SDS * sd[:, width - 1::width], axis=1)
-    sep = _min_separation(model, x)
+    sep = min_separation(model, x)
     return {"close": finite & (sep < RESOLUTION_SPACINGS), "weak": finite & weak,
             "separation": sep}
 

@@ -46,7 +46,7 @@ import numpy as np
 from ..antipodal import antipodal_pairs
 from ..bounds import bound_covariance
 from ..ml.rivals import RIVAL_WARN
-from ..resolution import RESOLUTION_SPACINGS, _min_separation
+from ..resolution import RESOLUTION_SPACINGS, min_separation
 from ._start import ball_covariance, initial_ensemble
 from .modes import ModeOptions
 
@@ -79,7 +79,7 @@ def _crowded(model, centre: np.ndarray) -> bool:
     sources where it would switch (mostly half to one spacing apart), one ensemble
     per mode covered 0.75 and 0.59 at 90 %, one ensemble 0.98 and 0.95.
     """
-    return bool(_min_separation(model, centre[None])[0] < RESOLUTION_SPACINGS)
+    return bool(min_separation(model, centre[None])[0] < RESOLUTION_SPACINGS)
 
 
 def model_point(model, prior, data: np.ndarray, x: np.ndarray) -> np.ndarray:

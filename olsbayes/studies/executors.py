@@ -293,22 +293,31 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
             "executor='dask' needs the optional dependency dask.distributed: "
             "pip install 'olsbayes[dask]'"
         )
-    if scheduler is None:  # the server imports while this process imports distributed
-        n_workers = _local_workers(workers)
-        _forkserver("distributed")
-        forkserver.ensure_running()  # started with the package, before distributed sets its list
-    from distributed import Client, LocalCluster
+    if scheduler is None:
+        return _local_dask(_local_workers(workers))
+    if not isinstance(scheduler, str) or not scheduler:
+        raise InputError(f"scheduler must be an address such as 'tcp://host:8786'; "
+                         f"got {_short(scheduler)}")
+    from distributed import Client
 
-    if scheduler is not None:
-        if not isinstance(scheduler, str) or not scheduler:
-            raise InputError(f"scheduler must be an address such as 'tcp://host:8786'; "
-                             f"got {_short(scheduler)}")
-        try:  # not the process's default client: a failed start must leave no global behind
-            client = Client(scheduler, timeout="20s", set_as_default=False)
-        except (OSError, ValueError, TypeError) as exc:  # unreachable, or not an address
-            raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
-        return _dask_backend(client, client.close)
+    try:  # not the process's default client: a failed start must leave no global behind
+        client = Client(scheduler, timeout="20s", set_as_default=False)
+    except (OSError, ValueError, TypeError) as exc:  # unreachable, or not an address
+        raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
+    return _dask_backend(client, client.close)
+
+
+def _local_dask(n_workers: int) -> Backend:
+    """A ``LocalCluster`` of ``n_workers`` processes forked from the fork server.
+
+    The server starts first (told to import the package and ``distributed``,
+    before ``distributed`` can set its own list), so its imports run while this
+    process imports ``distributed``.
+    """
+    _forkserver("distributed")
+    forkserver.ensure_running()
     import dask
+    from distributed import Client, LocalCluster
 
     with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1,
