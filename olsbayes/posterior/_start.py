@@ -80,7 +80,10 @@ def initial_ensemble(
     """``n_walkers`` draws from N(centre, cov) that satisfy ``inside`` (a mask fn).
 
     Draws outside the prior support are redrawn; after ``max_tries`` rounds
-    the ball shrinks by 2 each round.
+    the ball shrinks by 2 each round.  A centre on a corner of the support (say
+    two intensities at 0 whose errors are anti-correlated) leaves a share of
+    the ball inside that no shrinking raises; the walkers still missing are
+    then drawn from the whole ball in batches (:func:`_fill_from_ball`).
     """
     root = covariance_root(cov)
     out = np.empty((n_walkers, centre.size))
@@ -96,6 +99,29 @@ def initial_ensemble(
             return out
         if attempt >= max_tries:
             shrink *= 0.5
+    out[todo] = _fill_from_ball(centre, root, todo.size, inside, rng)
+    return out
+
+
+#: Rows per batch of :func:`_fill_from_ball` (bounds its memory: rows x P floats).
+_BATCH_ROWS = 1 << 16
+
+
+def _fill_from_ball(centre: np.ndarray, root: np.ndarray, n: int, inside,
+                    rng: np.random.Generator, rounds: int = 16) -> np.ndarray:
+    """``n`` draws (n, P) of N(centre, root root^T) inside the support, by batches.
+
+    Covers a share of the ball inside down to about ``n / (rounds * 65536)``.
+    """
+    got: list[np.ndarray] = []
+    need = n
+    for _ in range(rounds):
+        cand = centre + rng.standard_normal((_BATCH_ROWS, centre.size)) @ root.T
+        cand = cand[inside(cand)][:need]
+        got.append(cand)
+        need -= len(cand)
+        if need == 0:
+            return np.concatenate(got)
     raise InputError("start: could not place walkers inside the prior support around the start")
 
 

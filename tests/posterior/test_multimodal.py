@@ -261,3 +261,24 @@ def test_near_antipodal_pair_at_a_crowded_ml_point_does_not_trigger_the_modes():
         assert len(antipodal_pairs(model, x)) == 1
         reason = trigger_reason(model, x, np.nan, ModeOptions())
         assert ("near-antipodal" in reason) is expect, (gap, reason)
+
+
+def test_walkers_placed_around_a_mode_on_a_corner_of_the_support():
+    # a mode with two intensities at 0 whose errors are anti-correlated (two faint
+    # sources at one direction): about 0.4 % of its ball is inside the support, however
+    # far the ball shrinks; the walkers come from the whole ball in batches
+    from olsbayes.posterior._start import initial_ensemble
+
+    centre = np.array([0.0, 0.0, 0.0])
+    rho = -0.999
+    cov = np.array([[1.0, rho, 0.0], [rho, 1.0, 0.0], [0.0, 0.0, 1.0]]) * 0.01
+
+    def inside(x):
+        return (x[..., 0] >= 0) & (x[..., 1] >= 0) & (x[..., 2] >= 0)
+
+    share = 0.5 * (0.25 + np.arcsin(rho) / (2 * np.pi))  # P(x0, x1 >= 0) P(x2 >= 0)
+    assert 0.002 < share < 0.005
+    walkers = initial_ensemble(centre, cov, 64, inside, np.random.default_rng(1))
+    assert walkers.shape == (64, 3) and inside(walkers).all()
+    # drawn from the ball, not squeezed onto the centre
+    assert np.median(np.abs(walkers[:, 2])) > 0.03
