@@ -77,7 +77,9 @@ class ModeOptions:
         ensemble per point).  Near-antipodal pairs trigger the search unless
         two sources of the ML point are closer than the resolution limit
         (:data:`olsbayes.resolution.RESOLUTION_SPACINGS`: its configuration is
-        not pinned); the CRLB alarm always does.
+        not pinned) or a source of the pair is less than
+        :data:`olsbayes.resolution.WEAK_SDS` Cramer-Rao sd above zero (the pair
+        is an artefact of the ML point); the CRLB alarm always does.
     """
 
     antipodal_spacings: float = ANTIPODAL_SPACINGS

@@ -263,6 +263,25 @@ def test_near_antipodal_pair_at_a_crowded_ml_point_does_not_trigger_the_modes():
         assert ("near-antipodal" in reason) is expect, (gap, reason)
 
 
+def test_near_antipodal_pair_with_a_weak_source_does_not_trigger_the_modes():
+    # a pair one of whose sources the readings cannot tell from zero (intensity under
+    # WEAK_SDS Cramer-Rao sd) is an artefact of the ML point: no search for modes;
+    # the same pair with both sources pinned triggers it
+    from olsbayes.bounds import bound_covariance
+    from olsbayes.posterior.multimodal import trigger_reason
+    from olsbayes.resolution import WEAK_SDS
+
+    model = Model(Ring(30), sigma=1e-3)
+    h = 2 * np.pi / 30
+    for weak, expect in ((1e-4, False), (0.8, True)):
+        x = np.array([0.0, 1.0, np.pi - 0.3 * h, weak, np.pi / 2, 1.1, np.pi / 2 + 4 * h, 0.9])
+        sd = np.sqrt(np.diag(bound_covariance(model.fisher(x))[0]))[3]
+        assert bool(x[3] >= WEAK_SDS * sd) is expect
+        assert len(antipodal_pairs(model, x)) == 1
+        reason = trigger_reason(model, x, np.nan, ModeOptions())
+        assert ("near-antipodal" in reason) is expect, (weak, reason)
+
+
 def test_walkers_placed_around_a_mode_on_a_corner_of_the_support():
     # a mode with two intensities at 0 whose errors are anti-correlated (two faint
     # sources at one direction): about 0.4 % of its ball is inside the support, however
