@@ -67,7 +67,7 @@ class EvidenceWarning(OlsBayesWarning):
 
 
 class NullSpaceWarning(OlsBayesWarning):
-    """An imaging problem whose design matrix has a large null space."""
+    """An imaging problem whose readings leave many intensity combinations to the prior."""
 
 
 class MultimodalWarning(OlsBayesWarning):

@@ -75,8 +75,10 @@ class ImageOptions:
     level : float
         Credibility of the intervals, in (0, 1).
     null_warn : float
-        Warn :class:`~olsbayes.errors.NullSpaceWarning` when the design's
-        nullity / K exceeds this fraction, in (0, 1].
+        Warn :class:`~olsbayes.errors.NullSpaceWarning` when the share of
+        intensity combinations the readings pin less well than the prior's
+        scale (``1 - effective_rank / K``, the null space included) exceeds
+        this fraction, in (0, 1].
     rhat_max : float
         Warn :class:`~olsbayes.errors.ConvergenceWarning` when the chains'
         largest split R-hat exceeds this (> 1; default 1.01, the threshold of

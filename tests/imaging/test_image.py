@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from reference.moments import batch_se, box_moments_2d
@@ -55,6 +57,31 @@ def test_antipodal_pairs_make_the_cosine_design_rank_deficient():
     null = res.design.null_space
     np.testing.assert_allclose(res.design.matrix @ null, 0.0, atol=1e-10)
     np.testing.assert_allclose(res.null_fraction.sum(), 16 - res.rank, rtol=1e-10)
+
+
+def test_combinations_pinned_less_well_than_the_prior_scale_warn():
+    # three ring sources half a spacing apart at SNR 10: the design has full rank but
+    # its smallest singular values give noise sd sigma / s above the prior's scale, so
+    # those intensity combinations (and their intervals) are the prior's; three
+    # spacings apart at SNR 1000 every combination is pinned and nothing warns
+    h = 2 * np.pi / 30
+    for sep, sigma, expect in ((0.5, 0.1, True), (3.0, 1e-3, False)):
+        model = ob.Model(ob.Ring(30), sigma=sigma)
+        dirs = 0.3 + sep * h * np.arange(3)
+        a = design_matrix(model, dirs)
+        s = np.linalg.svd(a, compute_uv=False)
+        prior = ob.imaging.Gaussian(mean=1.0, sd=0.5)
+        unpinned = int(np.sum(sigma / s >= prior.scale))
+        assert (unpinned > 0) is expect and np.linalg.matrix_rank(a) == 3
+        y = a @ np.ones(3)
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            res = image(model, y, dirs, prior)
+        hits = [w for w in seen if issubclass(w.category, NullSpaceWarning)]
+        assert bool(hits) is expect
+        assert res.design.effective_rank == 3 - unpinned
+        if expect:
+            assert f"the other {unpinned} (0 of them invisible" in str(hits[0].message)
 
 
 # -- Gaussian prior --------------------------------------------------------------
