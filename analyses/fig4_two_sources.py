@@ -62,9 +62,12 @@ def measure(sep: float, trials: int, rng: np.random.Generator) -> dict:
     truth = model.canonical(model.pack(scene))
     data = model.simulate(scene, rng=rng, size=trials)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning))
+        # the figure charts where these fits break down; their per-fit warnings (a
+        # singular Fisher matrix, the resolution limit) would repeat it at every separation
+        warnings.simplefilter("ignore", (ob.ConvergenceWarning, ob.MultimodalWarning,
+                                         ob.ResolutionWarning))
         res = fit_ml(model, data, 2)
-    ex = fit_ml(model, data, 2, method="exact")
+        ex = fit_ml(model, data, 2, method="exact")
     err = estimation_errors(model, res.params, truth)
     rms = np.sqrt(np.mean(err**2, axis=0)).reshape(2, 2)
     rms_ex = np.sqrt(np.mean(estimation_errors(model, ex.params, truth)**2, axis=0)).reshape(2, 2)
