@@ -43,7 +43,7 @@ from .circular import wrap_angle
 from .errors import NearResolutionWarning
 
 __all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "min_separation",
-           "RESOLUTION_SPACINGS", "WEAK_SDS", "ANTIPODAL_DOUBT"]
+           "weak_sources", "RESOLUTION_SPACINGS", "WEAK_SDS", "ANTIPODAL_DOUBT"]
 
 #: Sources closer than this many sensor spacings are near the resolution limit.
 RESOLUTION_SPACINGS = 1.5
@@ -85,6 +85,19 @@ def min_separation(model, x: np.ndarray) -> np.ndarray:
     return d.min(axis=(1, 2)) / sensor_spacing(model)
 
 
+def weak_sources(model, x: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Which sources of each row of ``x`` (T, P) are weak, bool (T, K).
+
+    Weak: an intensity less than :data:`WEAK_SDS` of its sd, the square root of
+    the diagonal of ``cov`` (T, P, P); an infinite or NaN sd (a singular Fisher
+    matrix) counts as weak.
+    """
+    width = model.n_loc + 1
+    var = np.diagonal(cov, axis1=-2, axis2=-1)[:, width - 1::width]
+    with np.errstate(invalid="ignore"):
+        return ~(x[:, width - 1::width] >= WEAK_SDS * np.sqrt(var))
+
+
 def gaussian_doubts(model, x: np.ndarray, cov: np.ndarray) -> dict[str, np.ndarray]:
     """Which estimates sit where Gaussian errors are not calibrated.
 
@@ -108,9 +121,7 @@ def gaussian_doubts(model, x: np.ndarray, cov: np.ndarray) -> dict[str, np.ndarr
     cov = np.asarray(cov, dtype=float).reshape(x.shape[0], x.shape[1], x.shape[1])
     var = np.diagonal(cov, axis1=-2, axis2=-1)
     finite = np.all(np.isfinite(cov), axis=(1, 2)) & np.all(var > 0, axis=1)
-    sd = np.sqrt(np.where(finite[:, None], var, 1.0))
-    width = model.n_loc + 1
-    weak = np.any(x[:, width - 1::width] < WEAK_SDS * sd[:, width - 1::width], axis=1)
+    weak = weak_sources(model, x, cov).any(axis=1)
     sep = min_separation(model, x)
     return {"close": finite & (sep < RESOLUTION_SPACINGS), "weak": finite & weak,
             "separation": sep}

@@ -47,7 +47,7 @@ import numpy as np
 from ..antipodal import antipodal_pairs
 from ..bounds import bound_covariance
 from ..ml.rivals import RIVAL_WARN
-from ..resolution import RESOLUTION_SPACINGS, WEAK_SDS, min_separation
+from ..resolution import RESOLUTION_SPACINGS, min_separation, weak_sources
 from ._start import ball_covariance, initial_ensemble
 from .modes import ModeOptions
 
@@ -88,8 +88,10 @@ def _crowded(model, centre: np.ndarray) -> bool:
 def _pinned(model, centre: np.ndarray, pairs: tuple) -> tuple:
     """The ``pairs`` (i, j, offset) of ``centre`` (P_model,) whose two sources are pinned.
 
-    A source is pinned when its intensity is at least :data:`WEAK_SDS` Cramer-Rao
-    sd above zero (an infinite sd, a singular Fisher matrix, is not).  A pair with
+    A source is pinned when it is not weak
+    (:func:`olsbayes.resolution.weak_sources`: an intensity at least
+    :data:`~olsbayes.resolution.WEAK_SDS` Cramer-Rao sd above zero; an infinite
+    sd, a singular Fisher matrix, is not).  A pair with
     a source the readings do not tell from nothing is an artefact of the ML point,
     not two sources whose mirror configuration competes: on the calibration map's
     rings of two to four sources where such pairs switched to one ensemble per
@@ -98,11 +100,8 @@ def _pinned(model, centre: np.ndarray, pairs: tuple) -> tuple:
     0.95; every near-antipodal four-source scene that switched kept its pairs.
     """
     cov, _, _ = bound_covariance(model.fisher(centre))
-    width = model.n_loc + 1
-    with np.errstate(invalid="ignore"):
-        sd = np.sqrt(np.diagonal(cov)[width - 1::width])
-        pinned = centre[width - 1::width] >= WEAK_SDS * sd  # False for inf / NaN sd
-    return tuple(pair for pair in pairs if pinned[pair[0]] and pinned[pair[1]])
+    weak = weak_sources(model, centre[None], cov[None])[0]
+    return tuple(pair for pair in pairs if not (weak[pair[0]] or weak[pair[1]]))
 
 
 def model_point(model, prior, data: np.ndarray, x: np.ndarray) -> np.ndarray:

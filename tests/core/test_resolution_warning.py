@@ -20,6 +20,7 @@ from olsbayes.resolution import (
     WEAK_SDS,
     antipodal_doubts,
     gaussian_doubts,
+    weak_sources,
 )
 
 H = 2 * np.pi / 30  # sensor spacing of the ring of 30
@@ -77,6 +78,10 @@ def test_doubts_of_a_batch_from_estimates_and_covariances():
     np.testing.assert_array_equal(d["weak"], [False, True, False, False])
     np.testing.assert_allclose(d["separation"], [1.2, 4.0, 4.0, 0.5], rtol=1e-9)
     assert RESOLUTION_SPACINGS == 1.5 and WEAK_SDS == 3.0
+    # per source: the weak intensity of row 1, and the infinite sd of row 3 (weak
+    # there, though gaussian_doubts leaves rows without finite errors to the fit)
+    np.testing.assert_array_equal(weak_sources(model, x, cov),
+                                  [[False, False], [False, True], [False, False], [True, False]])
 
 
 def test_sampling_a_close_pair_from_its_ml_start_warns():
