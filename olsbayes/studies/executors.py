@@ -313,13 +313,27 @@ def _local_dask(n_workers: int) -> Backend:
     The server starts first (told to import the package and ``distributed``,
     before ``distributed`` can set its own list), so its imports run while this
     process imports ``distributed``.
+
+    The cluster's servers run with Dask's housekeeping timers slowed: no
+    statistical profiler (by default it samples each running task's stack every
+    10 ms), the event-loop health tick every 1 s instead of 20 ms, the system
+    monitor every 2 s and the workers' memory monitor every 1 s.  Each wake-up
+    takes the GIL from the trials that run beside it; a study's trials are
+    Python-heavy, so these timers cost a local cluster a sizeable share of its
+    throughput (``benchmarks/study_throughput.py``).  Only this cluster is
+    affected (a user's client or scheduler keeps its own settings); its
+    dashboard then shows no task profiles.
     """
     _forkserver("distributed")
     forkserver.ensure_running()
     import dask
     from distributed import Client, LocalCluster
 
-    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver",
+                          "distributed.worker.profile.enabled": False,
+                          "distributed.admin.tick.interval": "1s",
+                          "distributed.admin.system-monitor.interval": "2s",
+                          "distributed.worker.memory.monitor-interval": "1s"}):
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1,
                                processes=True, dashboard_address=":0")
     client = Client(cluster, set_as_default=False)

@@ -443,3 +443,21 @@ def test_local_dask_workers_fork_from_the_package_fork_server():
     local = run_study(noise_check, GRID, 24, executor="dask", workers=2, rng=7, chunk_size=3,
                       progress=False)
     assert local.identical(_serial())
+
+
+def test_local_dask_cluster_runs_with_quiet_housekeeping_timers_only_there():
+    # the cluster run_study starts has no task profiler and slow ticks in its workers
+    # and scheduler; the calling process's own Dask settings are left as they were
+    import dask
+
+    from olsbayes.studies.executors import make_backend
+
+    before = dask.config.get("distributed.worker.profile.enabled")
+    backend = make_backend("dask", workers=1)
+    try:
+        worker = backend.submit(dask.config.get, "distributed.worker.profile.enabled").result()
+        ticks = backend.submit(dask.config.get, "distributed.admin.tick.interval").result()
+        assert worker is False and ticks == "1s"
+    finally:
+        backend.close()
+    assert dask.config.get("distributed.worker.profile.enabled") == before
