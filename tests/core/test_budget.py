@@ -140,3 +140,12 @@ def test_fit_blocks_equal_one_batch():
         one = ob.fit_ml(MODEL, data[i], 2, warn=False)
         np.testing.assert_allclose(one.params, batch.params[i], rtol=0, atol=1e-10)
         np.testing.assert_allclose(one.cov, batch.cov[i], rtol=1e-8)
+
+
+def test_a_fit_on_a_large_array_allocates_nothing_sensor_by_sensor():
+    # after a model's one-off set-up (atoms, grid, sensor spacing) a fit's memory grows
+    # with N, not N^2: one 4000 x 4000 matrix of doubles would be 128 MB
+    model = ob.Model(ob.Ring(4000), 0.01)
+    data = model.simulate(ob.Scene(directions=[0.4, 2.0], intensities=[1.0, 0.8]), rng=1)
+    ob.fit_ml(model, data, 2)
+    assert _peak(lambda: ob.fit_ml(model, data, 2)) < 16e6

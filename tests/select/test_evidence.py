@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from olsbayes import Model, Ring
+from olsbayes import Model, Plate, Ring, Sphere
 from olsbayes.errors import ConvergenceWarning, InputError
 from olsbayes.priors import ScenePrior, Uniform
 from olsbayes.select import (
@@ -169,6 +169,31 @@ def test_spacing_and_separation_on_a_ring():
     sep, pair = min_separation(RING, np.array([3.1, 1.0, -3.1, 1.0, 0.0, 1.0]))
     assert sep == pytest.approx(2 * np.pi - 6.2) and pair == (0, 1)
     assert min_separation(RING, np.array([0.1, 1.0]))[0] == np.inf
+
+
+def _all_pairs_spacing(model: Model) -> float:
+    """The definition: median over sub-sensors of the distance to the nearest other one."""
+    if model.kind == "position":
+        pts = model.array.positions
+        d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+    else:
+        nrm = model.array.normals
+        d = np.arccos(np.clip(nrm @ nrm.T, -1.0, 1.0))
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(axis=1)))
+
+
+def test_spacing_equals_the_all_pairs_definition_and_is_kept_on_the_model():
+    # blocks of rows beyond 512 sub-sensors; bit for bit the all-pairs value
+    rng = np.random.default_rng(5)
+    lat, lon = np.arcsin(rng.uniform(-1, 1, 700)), rng.uniform(-np.pi, np.pi, 700)
+    arrays = [Ring(7), Ring(300), Ring(1100, offset=0.3), Sphere(lon, lat),
+              Sphere.grid(12, 24), Plate.grid(30, 20, 0.5)]
+    for array in arrays:
+        model = Model(array, 0.01)
+        assert model.memo("sensor_spacing") is None
+        assert sensor_spacing(model) == _all_pairs_spacing(model)
+        assert model.memo("sensor_spacing") == sensor_spacing(model)
 
 
 def test_trust_flags_unresolvable_pairs_and_weak_sources():
