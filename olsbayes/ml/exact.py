@@ -59,10 +59,12 @@ solved (unless feasible configurations are counted).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._budget import check_memory
 from .._validation import integer
 from ..circular import TWO_PI, wrap_angle
 from ..errors import InputError
@@ -71,7 +73,7 @@ from ..model import Model
 from ..sensitivity import is_clipped_cosine
 
 __all__ = ["ExactSolution", "check_exact", "enumerate_optimum", "crossing_angles",
-           "MAX_SOURCES", "RANK_RTOL"]
+           "n_configurations", "design_bytes", "MAX_SOURCES", "RANK_RTOL"]
 
 #: Largest K accepted (K = 4 on an odd 31-ring: ~9.7M configurations).
 MAX_SOURCES = 4
@@ -133,6 +135,24 @@ def crossing_angles(ring: Ring) -> np.ndarray:
     return c
 
 
+def n_configurations(model: Model, k: int) -> int:
+    """Configurations the enumeration scans per data vector: sum_{j <= K} C(2M, j).
+
+    M crossings (:func:`crossing_angles`): N on an even ring, 2N on an odd one.
+    """
+    m2 = 2 * crossing_angles(model.array).size
+    return sum(math.comb(m2, j) for j in range(k + 1))
+
+
+def design_bytes(model: Model) -> float:
+    """Bytes of the enumeration's data-independent arrays (cached on the model).
+
+    The state columns (N, 3M) and their Gram matrix (3M, 3M), doubles: O(N^2).
+    """
+    m3 = 3 * crossing_angles(model.array).size
+    return 8.0 * (model.n_sensors * m3 + m3 * m3)
+
+
 def _scan_design(model: Model) -> tuple[np.ndarray, ...]:
     """The scan's arrays of a model, cached on the model.
 
@@ -180,6 +200,8 @@ def check_exact(model: Model, k: int) -> None:
             "method='exact' needs the clipped cosine law (Cosine, 'cosine'); got "
             f"{model.sensitivity!r}")
     integer("n_sources", k, low=1, high=MAX_SOURCES)
+    check_memory(f"method='exact' on {model.n_sensors} sub-sensors (its (N, 3M) state "
+                 "columns and their Gram matrix)", design_bytes(model))
 
 
 def _widths(c: np.ndarray) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 
 import numpy as np
@@ -259,6 +260,31 @@ def test_fast_options_per_k_defaults_and_structural_refusals():
         FastOptions(kink_hops=True).resolve(sphere, 2)
     with pytest.raises(InputError, match="escalate=True"):
         fit_ml(sphere, np.zeros(40), 2, options=FastOptions(escalate=True))
+
+
+def test_escalation_runs_by_default_only_where_the_enumeration_is_affordable():
+    # sum_{j <= K} C(2M, j) configurations per data vector (M = N crossings on an even
+    # ring): the default escalation stops at ESCALATE_CONFIGURATIONS; beyond, K = 3 on
+    # a 1000-ring would enumerate ~1.3e9 configurations per fit
+    from olsbayes.ml.exact import design_bytes, n_configurations
+    from olsbayes.ml.fast.options import ESCALATE_CONFIGURATIONS
+
+    def model(n):
+        return ob.Model(ob.Ring(n), 1e-2)
+
+    assert n_configurations(model(30), 3) == sum(math.comb(60, j) for j in range(4))
+    assert n_configurations(model(31), 2) == sum(math.comb(124, j) for j in range(3))
+    for n, k, on in ((194, 3, True), (196, 3, False), (1000, 3, False), (1000, 2, True),
+                     (2234, 2, True), (2236, 2, False), (97, 3, True), (99, 3, False)):
+        assert FastOptions().resolve(model(n), k).escalate is on, (n, k)
+        assert (n_configurations(model(n), k) <= ESCALATE_CONFIGURATIONS) is on
+    # asked for explicitly, the enumeration's O(N^2) arrays are bounded before allocation
+    big = model(20_000)
+    assert design_bytes(big) > 4 * 2**30
+    with pytest.raises(InputError, match="escalate=True on 20000 sub-sensors"):
+        FastOptions(escalate=True).resolve(big, 2)
+    with pytest.raises(InputError, match="method='exact' on 20000 sub-sensors"):
+        fit_ml(big, np.zeros(20_000), 1, "exact")
 
 
 def test_compiled_post_fit_checks_match_numpy():

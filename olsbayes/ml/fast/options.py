@@ -23,7 +23,12 @@ The defaults, and why:
   candidates for the float64 refinement; twice the lanes per vector instruction).
 * ``escalate``: fits with close or lopsided sources refitted by exact enumeration
   (:mod:`olsbayes.ml.fast.escalate`) -- K = 2, 3 on rings with the clipped cosine,
-  where the search alone missed the global optimum of such fits.
+  where the search alone missed the global optimum of such fits, up to
+  :data:`ESCALATE_CONFIGURATIONS` configurations per data vector (about half a
+  second; even rings up to N = 2234 for K = 2 and N = 194 for K = 3, odd rings
+  half that) and within the memory budget of the enumeration's O(N^2) arrays.
+  Beyond, a refit would cost minutes to hours per fit (K = 3 on a 1000-ring: 1.3e9
+  configurations), and the fit is the search's.
 * ``runners_up``: runner-up positions per source as candidates -- 2, none where
   the second modes are searched and the escalation covers close fits (K = 3 on
   such rings).
@@ -56,7 +61,19 @@ from ...errors import InputError
 from ...geometry import Ring
 from ...sensitivity import is_clipped_cosine
 
-__all__ = ["FastOptions"]
+__all__ = ["FastOptions", "ESCALATE_CONFIGURATIONS"]
+
+#: Largest enumeration (configurations per data vector) the default escalation runs.
+ESCALATE_CONFIGURATIONS = 10_000_000
+
+
+def _affordable(model, k: int) -> bool:
+    """Whether an escalated refit of K sources stays within the defaults' budgets."""
+    from ..._budget import memory_limit
+    from ..exact import design_bytes, n_configurations
+
+    return (n_configurations(model, k) <= ESCALATE_CONFIGURATIONS
+            and design_bytes(model) <= memory_limit())
 
 
 @dataclass(frozen=True)
@@ -177,11 +194,18 @@ class FastOptions:
             raise InputError("escalate=True needs a Ring model with the clipped cosine and "
                              f"n_sources <= 4; got {type(model.array).__name__} with "
                              f"{model.sensitivity!r} and n_sources = {k}")
+        if self.escalate:
+            from ..._budget import check_memory
+            from ..exact import design_bytes
+
+            check_memory(f"escalate=True on {model.n_sensors} sub-sensors (the enumeration's "
+                         "state columns and their Gram matrix)", design_bytes(model))
         if self.kink_hops and not (model.kind == "angle" and model.sensitivity.kink):
             raise InputError("kink_hops=True needs a planar array (angles) and a law with a "
                              f"kink; got {model.kind!r} sources and {model.sensitivity!r}")
         distinct = (k == 3 or k >= 5) if self.distinct_modes is None else self.distinct_modes
-        escalate = (ring_cosine and k in (2, 3)) if self.escalate is None else self.escalate
+        escalate = (ring_cosine and k in (2, 3) and _affordable(model, k)
+                    if self.escalate is None else self.escalate)
         hops = (k >= 2 and model.kind == "angle" and model.sensitivity.kink
                 if self.kink_hops is None else self.kink_hops)
         planar = model.kind == "angle"
