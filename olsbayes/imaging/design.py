@@ -159,7 +159,8 @@ def analyse_design(
         Intensity scale (e.g. ``i_max``) against which a direction counts as measured.
     """
     n, k = matrix.shape
-    u, s, vt = np.linalg.svd(matrix, full_matrices=True)
+    # V (K, K) in full; U only as wide as needed (a full U is N x N: 800 MB at N = 10^4)
+    _, s, vt = np.linalg.svd(matrix, full_matrices=k > n)
     tol = max(n, k) * np.finfo(float).eps * (s[0] if s.size else 0.0)
     rank = int(np.sum(s > tol))
     null = np.ascontiguousarray(vt[rank:].T)

@@ -149,3 +149,12 @@ def test_a_fit_on_a_large_array_allocates_nothing_sensor_by_sensor():
     data = model.simulate(ob.Scene(directions=[0.4, 2.0], intensities=[1.0, 0.8]), rng=1)
     ob.fit_ml(model, data, 2)
     assert _peak(lambda: ob.fit_ml(model, data, 2)) < 16e6
+
+
+def test_imaging_a_large_array_allocates_nothing_sensor_by_sensor():
+    # the design's SVD keeps V (K x K) and no N x N factor (128 MB at N = 4000)
+    model = ob.Model(ob.Ring(4000), 0.01)
+    data = model.simulate(ob.Scene(directions=[0.4, 2.0], intensities=[1.0, 0.8]), rng=1)
+    directions = np.array([0.4, 1.5, 2.9, 4.4])
+    options = ob.ImageOptions(n_samples=0)
+    assert _peak(lambda: ob.image(model, data, directions, rng=1, options=options)) < 16e6
