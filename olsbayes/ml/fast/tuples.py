@@ -70,7 +70,9 @@ def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
     """``dist(i) -> (M_live,)``: distances of the live unit atoms to live atom i, and live.
 
     From the unit atoms themselves, or (``gram`` given) from the normalised
-    correlations ``c``: ``|u_a - u_b| = sqrt(2 - 2 c_ab)``.
+    correlations ``c``: ``|u_a - u_b| = sqrt(2 - 2 c_ab)``.  Unit atoms of more than
+    :data:`GRAM_SAMPLING_ENTRIES` entries (and no Gram matrix) take the correlations
+    one matrix-vector product at a time: no (M, N) temporary per step.
     """
     if gram is None:
         norm = np.linalg.norm(g, axis=1)
@@ -79,6 +81,8 @@ def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
     live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
     if gram is None:
         u = g[live] / norm[live, None]
+        if u.size > GRAM_SAMPLING_ENTRIES:
+            return (lambda i: np.sqrt(np.maximum(2.0 - 2.0 * (u @ u[i]), 0.0))), live
         return (lambda i: np.linalg.norm(u - u[i], axis=1)), live
     inv = 1.0 / norm[live]
     corr = gram[np.ix_(live, live)] * inv[:, None] * inv[None, :]
