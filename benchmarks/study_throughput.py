@@ -165,33 +165,20 @@ COLD = ("serial", "processes(2) cold", "dask(2) cold", "dask(2) cold, new proces
         "dask(2) cold, spawned", "serial, new process", "dask(2) cold, Dask's timers")
 
 
-def dask_spawned(n: int) -> None:
-    """The study on a local Dask cluster whose workers are spawned (Dask's default):
-    each imports numpy, scipy, distributed and the package itself.  The cluster's
-    start and close are part of the run, as they are in ``run_study``'s own."""
+def dask_own_cluster(n: int, start_method: str) -> None:
+    """The study on a fresh 2-worker Dask ``LocalCluster`` with Dask's default settings,
+    started here rather than by ``run_study``; its start and close are part of the run.
+
+    ``start_method`` "spawn" (Dask's default): each worker imports numpy, scipy,
+    distributed and the package itself.  "forkserver": the workers fork from this
+    process's fork server, as ``run_study``'s do, but keep Dask's default
+    housekeeping timers -- a task profiler sampling every 10 ms, an event-loop tick
+    every 20 ms -- where ``run_study`` slows them: what that gains.
+    """
     import dask
     from distributed import Client, LocalCluster
 
-    with dask.config.set({"distributed.worker.multiprocessing-method": "spawn"}):
-        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                               dashboard_address=":0")
-    client = Client(cluster, set_as_default=False)
-    try:
-        study(client, n)
-    finally:
-        client.close()
-        cluster.close()
-
-
-def dask_default_timers(n: int) -> None:
-    """The study on a local Dask cluster forked from this process's fork server (as
-    ``run_study`` starts one) but with Dask's default housekeeping timers -- a task
-    profiler sampling every 10 ms, an event-loop tick every 20 ms -- where
-    ``run_study`` slows them: what that gains.  Start and close are part of the run."""
-    import dask
-    from distributed import Client, LocalCluster
-
-    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+    with dask.config.set({"distributed.worker.multiprocessing-method": start_method}):
         cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                dashboard_address=":0")
     client = Client(cluster, set_as_default=False)
@@ -244,9 +231,10 @@ def cold_rounds(n: int, repeats: int) -> list[dict]:
             "processes(2) cold": lambda: timed(lambda: study("processes", n, workers=2)),
             "dask(2) cold": lambda: timed(lambda: study("dask", n, workers=2)),
             "dask(2) cold, new process": lambda: new_process("dask", n),
-            "dask(2) cold, spawned": lambda: timed(lambda: dask_spawned(n)),
+            "dask(2) cold, spawned": lambda: timed(lambda: dask_own_cluster(n, "spawn")),
             "serial, new process": lambda: new_process("serial", n),
-            "dask(2) cold, Dask's timers": lambda: timed(lambda: dask_default_timers(n))}
+            "dask(2) cold, Dask's timers": lambda: timed(
+                lambda: dask_own_cluster(n, "forkserver"))}
     return [{k: runs[k]() for k in COLD} for _ in range(repeats)]
 
 
