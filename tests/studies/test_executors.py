@@ -1,0 +1,79 @@
+"""Where a study's chunks run (``olsbayes.studies.executors``): the local pool's calls,
+a local Dask cluster forked from the package's fork server, and its settings."""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import os
+
+import pytest
+
+from olsbayes.studies import run_study
+from olsbayes.studies.trials import noise_check
+
+GRID = {"sigma": [0.01, 0.1], "n_sensors": [8, 16]}
+
+
+def _fail(msg):
+    raise ValueError(msg)
+
+
+def test_pool_calls_run_here_while_unsent_and_keep_their_errors():
+    from olsbayes.studies.executors import _PoolFuture
+
+    here = _PoolFuture(os.getpid, ())
+    assert here.result() == os.getpid() and here.settled  # not yet sent: runs here
+    bad = _PoolFuture(_fail, ("boom",))
+    bad.run_here()
+    with pytest.raises(ValueError, match="boom"):
+        bad.result()
+    dropped = _PoolFuture(os.getpid, ())
+    assert dropped.cancel() and not dropped.cancel()
+    with pytest.raises(cf.CancelledError):
+        dropped.result()
+
+
+def test_process_pool_study_on_many_small_chunks_equals_serial():
+    ref = run_study(noise_check, GRID, 6, executor="serial", rng=3, progress=False)
+    procs = run_study(noise_check, GRID, 6, executor="processes", workers=2, rng=3,
+                      chunk_size=1, progress=False)
+    assert procs.identical(ref)
+
+
+def test_local_dask_workers_fork_from_the_package_fork_server():
+    # a fresh local cluster's workers are forked by the fork server (which has imported
+    # the package) rather than spawned by this process, whose children they would be
+    import psutil
+
+    from olsbayes.studies.executors import make_backend
+
+    backend = make_backend("dask", workers=1)
+    try:
+        parent = backend.submit(os.getppid).result()
+        command = " ".join(psutil.Process(parent).cmdline())  # psutil: a distributed dependency
+        assert parent != os.getpid() and "multiprocessing.forkserver" in command
+    finally:
+        backend.close()
+    # and the study gives the same numbers as serial
+    local = run_study(noise_check, GRID, 24, executor="dask", workers=2, rng=7, chunk_size=3,
+                      progress=False)
+    assert local.identical(run_study(noise_check, GRID, 24, executor="serial", rng=7,
+                                     progress=False))
+
+
+def test_local_dask_cluster_runs_with_quiet_housekeeping_timers_only_there():
+    # the cluster run_study starts has no task profiler and slow ticks in its workers
+    # and scheduler; the calling process's own Dask settings are left as they were
+    import dask
+
+    from olsbayes.studies.executors import make_backend
+
+    before = dask.config.get("distributed.worker.profile.enabled")
+    backend = make_backend("dask", workers=1)
+    try:
+        worker = backend.submit(dask.config.get, "distributed.worker.profile.enabled").result()
+        ticks = backend.submit(dask.config.get, "distributed.admin.tick.interval").result()
+        assert worker is False and ticks == "1s"
+    finally:
+        backend.close()
+    assert dask.config.get("distributed.worker.profile.enabled") == before
