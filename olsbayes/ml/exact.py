@@ -72,8 +72,8 @@ from ..geometry import Ring
 from ..model import Model
 from ..sensitivity import is_clipped_cosine
 
-__all__ = ["ExactSolution", "check_exact", "enumerate_optimum", "crossing_angles",
-           "n_configurations", "design_bytes", "MAX_SOURCES", "RANK_RTOL"]
+__all__ = ["ExactSolution", "check_exact", "check_design_memory", "enumerate_optimum",
+           "crossing_angles", "n_configurations", "design_bytes", "MAX_SOURCES", "RANK_RTOL"]
 
 #: Largest K accepted (K = 4 on an odd 31-ring: ~9.7M configurations).
 MAX_SOURCES = 4
@@ -200,8 +200,16 @@ def check_exact(model: Model, k: int) -> None:
             "method='exact' needs the clipped cosine law (Cosine, 'cosine'); got "
             f"{model.sensitivity!r}")
     integer("n_sources", k, low=1, high=MAX_SOURCES)
-    check_memory(f"method='exact' on {model.n_sensors} sub-sensors (its (N, 3M) state "
-                 "columns and their Gram matrix)", design_bytes(model))
+    check_design_memory(model, "method='exact'")
+
+
+def check_design_memory(model: Model, what: str) -> None:
+    """Refuse, before allocating, an enumeration whose O(N^2) arrays exceed the budget.
+
+    ``what`` names the request in the message (``"method='exact'"``, ``"escalate=True"``).
+    """
+    check_memory(f"{what} on {model.n_sensors} sub-sensors (the enumeration's (N, 3M) "
+                 "state columns and their Gram matrix)", design_bytes(model))
 
 
 def _widths(c: np.ndarray) -> np.ndarray:

@@ -75,8 +75,6 @@ def _nearest_median(model: Model) -> float:
     far = model.kind != "position"
     pts = model.array.normals if far else model.array.positions
     n = len(pts)
-    if n < 2:
-        return float("inf")
     nearest = np.empty(n)
     for lo in range(0, n, _ROWS):
         rows = np.arange(lo, min(lo + _ROWS, n))

@@ -195,11 +195,9 @@ class FastOptions:
                              f"n_sources <= 4; got {type(model.array).__name__} with "
                              f"{model.sensitivity!r} and n_sources = {k}")
         if self.escalate:
-            from ..._budget import check_memory
-            from ..exact import design_bytes
+            from ..exact import check_design_memory
 
-            check_memory(f"escalate=True on {model.n_sensors} sub-sensors (the enumeration's "
-                         "state columns and their Gram matrix)", design_bytes(model))
+            check_design_memory(model, "escalate=True")
         if self.kink_hops and not (model.kind == "angle" and model.sensitivity.kink):
             raise InputError("kink_hops=True needs a planar array (angles) and a law with a "
                              f"kink; got {model.kind!r} sources and {model.sensitivity!r}")
