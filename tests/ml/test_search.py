@@ -263,29 +263,38 @@ def test_gram_farthest_point_sampling_is_farthest_point_sampling():
     assert sorted(chosen) == list(sub)
 
 
-def test_large_unit_atom_farthest_point_sampling_is_farthest_point_sampling():
+@pytest.mark.parametrize("lazy", [False, True])
+def test_large_unit_atom_farthest_point_sampling_is_farthest_point_sampling(lazy, monkeypatch):
     """Atom sets beyond GRAM_SAMPLING_ATOMS atoms and GRAM_SAMPLING_ENTRIES entries (a
-    plate's 3-D grid) take correlations by matrix-vector products: each atom added is
-    still (to rounding) the live atom farthest from those chosen before it."""
+    plate's 3-D grid) take correlations by matrix-vector products, and beyond
+    LAZY_SAMPLING_ENTRIES (here lowered to this plate's size) bring distances up to
+    date lazily: each atom added is still (to rounding) the live atom farthest from
+    those chosen before it, ties to the lowest index."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.fast import tuples
     from olsbayes.ml.fast.tuples import GRAM_SAMPLING_ATOMS, GRAM_SAMPLING_ENTRIES, coarse_subsets
 
     model = ob.Model(ob.Plate.grid(12, 12, 1.0), 1e-2)
     g = atoms(model, cached_default_grid(model))
     assert g.shape[0] > GRAM_SAMPLING_ATOMS and g.size > GRAM_SAMPLING_ENTRIES
+    if lazy:
+        monkeypatch.setattr(tuples, "LAZY_SAMPLING_ENTRIES", g.size - 1)
+        monkeypatch.setattr(tuples, "_unit_distances", None)  # the lazy path needs none
     norm = np.linalg.norm(g, axis=1)
     live = np.flatnonzero(norm > 1e-12 * norm.max())
     u = g[live] / norm[live, None]
-    (sub,) = coarse_subsets(g, 12, 1)
-    chosen = [0]
-    dist = np.linalg.norm(u - u[0], axis=1)
-    for _ in range(11):
-        far = dist.max()
-        nxt = [i for i in np.searchsorted(live, sub) if i not in chosen and dist[i] >= far - 1e-9]
-        assert nxt, "an atom of the subset is not a farthest point"
-        chosen.append(nxt[0])
-        dist = np.minimum(dist, np.linalg.norm(u - u[nxt[0]], axis=1))
-    assert sorted(live[chosen]) == list(sub)
+    subsets = coarse_subsets(g, 40, 2)
+    for j, sub in enumerate(subsets):
+        chosen = [j * live.size // 2]
+        dist = np.linalg.norm(u - u[chosen[0]], axis=1)
+        for _ in range(39):
+            far = dist.max()
+            nxt = [i for i in np.searchsorted(live, sub)
+                   if i not in chosen and dist[i] >= far - 1e-9]
+            assert nxt, "an atom of the subset is not a farthest point"
+            chosen.append(nxt[0])
+            dist = np.minimum(dist, np.linalg.norm(u - u[nxt[0]], axis=1))
+        assert sorted(live[chosen]) == list(sub)
 
 
 def test_coarse_size_is_the_largest_size_within_the_budget():
