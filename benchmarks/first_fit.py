@@ -14,8 +14,9 @@ distance bounds, only the top atoms brought up to date) and plainly (every
 atom's distance updated at every step, one matrix-vector product each).  Both
 must give the same fit.
 
-Goal: no call blocks for more than ~5 s without saying what it is doing
-(``fit_ml`` shows no progress), so a first fit should stay under ~5 s CPU.
+Goal: no call blocks for more than ~5 s without saying what it is doing.  A
+first fit should stay under ~5 s CPU, or print the set-up's line on stderr (atom
+sets beyond ``olsbayes.ml.atoms.NOTICE_ENTRIES`` entries; column "said so").
 
 Usage::
 
@@ -60,13 +61,14 @@ print(c1, time.process_time() - c, repr(float(first.log_likelihood)))
 """
 
 
-def first_fit(sampling: str, k: int, side: int) -> tuple[float, float, float]:
-    """CPU seconds of the first and second fit in a new process, and the first's log L."""
+def first_fit(sampling: str, k: int, side: int) -> tuple[float, float, float, bool]:
+    """CPU seconds of the first and second fit in a new process, the first's log L, and
+    whether the set-up said so on stderr."""
     out = subprocess.run([sys.executable, "-c", _CHILD, sampling, str(k), str(side),
                           json.dumps(POSITIONS[:k]), json.dumps(INTENSITIES[:k])],
                          capture_output=True, text=True, check=True)
     first, second, logl = out.stdout.split()[-3:]
-    return float(first), float(second), float(logl)
+    return float(first), float(second), float(logl), "olsbayes: building" in out.stderr
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,8 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     print(f"first ML fit on a new {args.side} x {args.side} plate, CPU s (median of "
           f"{args.rounds} interleaved rounds in ABBA order, each fit in a new process)")
-    print("K  lazy first  plain first  plain/lazy  later fit  same fit  goal <= ~5 s")
-    worst = 0.0
+    print("K  lazy first  plain first  plain/lazy  later fit  same fit  said so")
+    ok = True
     for k in range(1, 5):
         runs: dict[str, list] = {"lazy": [], "plain": []}
         for r in range(args.rounds):  # ABBA order: no method always goes first
@@ -86,10 +88,11 @@ def main(argv: list[str] | None = None) -> int:
         lazy, plain = (np.median([r[0] for r in runs[s]]) for s in ("lazy", "plain"))
         later = np.median([r[1] for r in runs["lazy"]])
         same = len({r[2] for rs in runs.values() for r in rs}) == 1
-        worst = max(worst, lazy)
+        said = all(r[3] for r in runs["lazy"])
+        ok &= lazy <= 5.0 or said
         print(f"{k}  {lazy:10.2f}  {plain:11.2f}  {plain / lazy:10.2f}  {later:9.2f}  "
-              f"{'yes' if same else 'NO':>8}")
-    print(f"slowest first fit {worst:.2f} s: {'met' if worst <= 5.0 else 'not met'}")
+              f"{'yes' if same else 'NO':>8}  {'yes' if said else 'no':>7}")
+    print(f"every first fit under ~5 s or said so on stderr: {'met' if ok else 'not met'}")
     return 0
 
 

@@ -9,6 +9,7 @@ Levenberg–Marquardt refinement, i.e. a fraction of the array's resolution.
 from __future__ import annotations
 
 import hashlib
+import sys
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from ..model import Model
 
 __all__ = ["default_grid", "default_grid_size", "cached_default_grid", "check_grid",
            "check_atom_memory", "atoms", "grid_step", "NEIGHBOUR", "RING_ATOMS_MAX",
-           "SPHERE_ATOMS"]
+           "SPHERE_ATOMS", "NOTICE_ENTRIES"]
 
 #: Normalised-atom correlation above which two atoms count as one basin (the
 #: neighbourhood of an atom in the searches of the fast fit).
@@ -145,23 +146,37 @@ def check_grid(model: Model, grid: object) -> np.ndarray:
 #: Grids whose atoms a model keeps at once (the default grid and a few user grids).
 _ATOM_GRIDS = 8
 
+#: Atom matrices of more entries (M N) than this say on stderr that they are being
+#: built: with the fast search's unit atoms and coarse subsets beside them the first
+#: fit then takes more than ~5 s (a 40 x 40 plate, 62,410 x 1,600 entries: ~8 s).
+NOTICE_ENTRIES = 50_000_000
+
+
+def _responses(model: Model, grid: np.ndarray) -> np.ndarray:
+    """The atoms of ``grid`` (read-only), with one stderr line when they are many."""
+    if grid.shape[0] * model.n_sensors > NOTICE_ENTRIES:
+        print(f"olsbayes: building the search over {grid.shape[0]:,} candidate locations x "
+              f"{model.n_sensors:,} sub-sensors (once per model and grid; seconds) ...",
+              file=sys.stderr, flush=True)
+    return _readonly(model.response(np.column_stack([grid, np.ones(grid.shape[0])])))
+
 
 def atoms(model: Model, grid: np.ndarray) -> np.ndarray:
     """Unit-intensity responses of the grid locations, shape (M, N), read-only.
 
     Cached on the model (:meth:`~olsbayes.Model.memo`) per grid content, since a
     model's response never changes; the model's own default grid is found by identity.
+    Building more than :data:`NOTICE_ENTRIES` entries prints one line on stderr.
     """
     if grid is model.memo("default_grid"):
-        return model.memo("default_atoms", lambda: _readonly(
-            model.response(np.column_stack([grid, np.ones(grid.shape[0])]))))
+        return model.memo("default_atoms", lambda: _responses(model, grid))
     flat = np.ascontiguousarray(grid, dtype=float)
     key = (flat.shape, hashlib.sha1(flat.view(np.uint8)).hexdigest())
     per_model = model.memo("atoms", dict)
     if key not in per_model:
         if len(per_model) >= _ATOM_GRIDS:
             per_model.clear()
-        per_model[key] = _readonly(model.response(np.column_stack([grid, np.ones(grid.shape[0])])))
+        per_model[key] = _responses(model, grid)
     return per_model[key]
 
 

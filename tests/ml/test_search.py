@@ -269,13 +269,14 @@ def test_large_unit_atom_farthest_point_sampling_is_farthest_point_sampling(lazy
     plate's 3-D grid) take correlations by matrix-vector products, and beyond
     LAZY_SAMPLING_ENTRIES (here lowered to this plate's size) bring distances up to
     date lazily: each atom added is still (to rounding) the live atom farthest from
-    those chosen before it, ties to the lowest index."""
+    those chosen before it, ties to the lowest index; dead atoms are never chosen."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
     from olsbayes.ml.fast import tuples
     from olsbayes.ml.fast.tuples import GRAM_SAMPLING_ATOMS, GRAM_SAMPLING_ENTRIES, coarse_subsets
 
     model = ob.Model(ob.Plate.grid(12, 12, 1.0), 1e-2)
     g = atoms(model, cached_default_grid(model))
+    g = np.vstack([np.zeros((3, g.shape[1])), g])  # atoms no sub-sensor sees: never chosen
     assert g.shape[0] > GRAM_SAMPLING_ATOMS and g.size > GRAM_SAMPLING_ENTRIES
     if lazy:
         monkeypatch.setattr(tuples, "LAZY_SAMPLING_ENTRIES", g.size - 1)
@@ -322,3 +323,23 @@ def test_default_grids_are_capped_for_large_arrays():
     sphere = {n: default_grid(ob.Model(ob.Sphere.fibonacci(n), 1e-2)).shape[0]
               for n in (20, 300, 5000)}
     assert sphere == {20: SPHERE_ATOMS[0], 300: 1200, 5000: SPHERE_ATOMS[1]}
+
+
+def test_a_large_search_set_up_says_so_once_per_model(monkeypatch, capsys):
+    """Atoms of more than NOTICE_ENTRIES entries print one stderr line when they are
+    built, none when the model reuses them; smaller ones print nothing."""
+    from olsbayes.ml import atoms as atoms_module
+
+    def building(err: str) -> list[str]:
+        return [line for line in err.splitlines() if line.startswith("olsbayes: building")]
+
+    data = ob.Model(ob.Ring(40), 1e-2).simulate(
+        ob.Scene(directions=[0.3], intensities=[1.0]), rng=1)
+    ob.fit_ml(ob.Model(ob.Ring(40), 1e-2), data, n_sources=1)
+    assert building(capsys.readouterr().err) == []
+    monkeypatch.setattr(atoms_module, "NOTICE_ENTRIES", 40 * 100)  # the 40-ring's >= 128 atoms
+    model = ob.Model(ob.Ring(40), 1e-2)
+    for _ in range(2):
+        ob.fit_ml(model, data, n_sources=1)
+    (line,) = building(capsys.readouterr().err)
+    assert "candidate locations x 40 sub-sensors" in line

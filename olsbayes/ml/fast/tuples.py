@@ -93,34 +93,52 @@ def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
     return (lambda i: np.sqrt(np.maximum(2.0 - 2.0 * corr[i], 0.0))), live
 
 
-def _lazy_farthest(u: np.ndarray, seed: int, size: int) -> list[int]:
-    """Farthest-point sampling of the unit rows ``u`` (M, N) from row ``seed``.
+def _lazy_farthest(g: np.ndarray, inv: np.ndarray, seed: int, dist: np.ndarray,
+                   size: int) -> list[int]:
+    """Farthest-point sampling of the unit atoms ``g * inv[:, None]`` (M, N).
 
-    An atom's distance to the chosen atoms only shrinks as atoms are added, so a
-    distance not yet brought up to date is an upper bound.  The atoms sit in a
-    max-heap of such bounds; the top one is brought up to date (its correlations
-    with the atoms chosen since its last update) and chosen if it still heads the
-    heap, ties going to the lower index as with ``argmax`` -- the same atoms as the
-    plain sampling up to rounding.  On a 32 x 32 plate's 39,690 atoms about 70 atoms
-    per step are brought up to date instead of all of them, and no (M, N)
-    temporary is formed.
+    ``dist`` (M,): the atoms' distances to atom ``seed`` (dead atoms, ``inv`` = 0,
+    at -1: never chosen).  An atom's distance to the chosen
+    atoms only shrinks as atoms are added, so a distance not yet brought up to date
+    is an upper bound.  The atoms sit in a max-heap of such bounds; the top one is
+    brought up to date (its correlations with the atoms chosen since its last
+    update) and chosen if it still heads the heap, ties going to the lower index as
+    with ``argmax`` -- the same atoms as the plain sampling up to rounding.  On a
+    32 x 32 plate's 39,690 atoms about 70 atoms per step are brought up to date
+    instead of all of them, and the atoms are neither copied nor normalised.
     """
-    chosen = [seed]
-    dist = np.sqrt(np.maximum(2.0 - 2.0 * (u @ u[seed]), 0.0))
-    applied = np.ones(u.shape[0], np.int64)  # chosen atoms already in dist[x]
-    heap = list(zip((-dist).tolist(), range(u.shape[0])))
+    chosen = [int(seed)]
+    units = np.empty((size, g.shape[1]))  # the chosen unit atoms, in order
+    units[0] = g[seed] * inv[seed]
+    applied = np.ones(g.shape[0], np.int64)  # chosen atoms already in dist[x]
+    heap = list(zip((-dist).tolist(), range(g.shape[0])))
     heapq.heapify(heap)
     while len(chosen) < size:
         _, x = heapq.heappop(heap)
         if applied[x] < len(chosen):
-            corr = u[chosen[applied[x]:]] @ u[x]
+            corr = (units[applied[x]:len(chosen)] @ g[x]) * inv[x]
             dist[x] = min(dist[x], np.sqrt(np.maximum(2.0 - 2.0 * corr, 0.0)).min())
             applied[x] = len(chosen)
         if heap and (-dist[x], x) > heap[0]:  # another atom may now be farther
             heapq.heappush(heap, (-dist[x], x))
         else:
+            units[len(chosen)] = g[x] * inv[x]
             chosen.append(x)
     return chosen
+
+
+def _lazy_subsets(g: np.ndarray, size: int, n_sets: int) -> list[np.ndarray]:
+    """:func:`coarse_subsets` by :func:`_lazy_farthest`, the seeds' distances in one pass."""
+    norm = np.sqrt(np.einsum("mn,mn->m", g, g))
+    live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
+    inv = np.zeros_like(norm)
+    inv[live] = 1.0 / norm[live]
+    seeds = live[np.arange(n_sets) * live.size // n_sets]
+    dist = np.sqrt(np.maximum(2.0 - 2.0 * (g[seeds] @ g.T) * inv[seeds, None] * inv, 0.0))
+    dist[:, inv == 0.0] = -1.0
+    dist[np.arange(n_sets), seeds] = 0.0
+    size = min(size, live.size)
+    return [np.sort(_lazy_farthest(g, inv, seed, row, size)) for seed, row in zip(seeds, dist)]
 
 
 def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1,
@@ -138,13 +156,7 @@ def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1,
     (equal up to rounding).
     """
     if gram is None and g.size > LAZY_SAMPLING_ENTRIES:  # no (M, N) temporary
-        norm = np.sqrt(np.einsum("mn,mn->m", g, g))
-        live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
-        u = g[live]
-        u /= norm[live, None]
-        size = min(size, live.size)
-        return [live[np.sort(_lazy_farthest(u, j * live.size // n_sets, size))]
-                for j in range(n_sets)]
+        return _lazy_subsets(g, size, n_sets)
     distance, live = _unit_distances(g, gram)
     size = min(size, live.size)
     out = []
