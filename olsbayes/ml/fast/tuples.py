@@ -66,8 +66,9 @@ def coarse_size(m: int, n: int, k: int, budget: int) -> int:
 GRAM_SAMPLING_ENTRIES = 500_000
 GRAM_SAMPLING_ATOMS = 2048
 #: Atom matrices with more entries than this and no Gram matrix sample lazily: a
-#: step of the plain sampling then reads more than 64 MB of atoms.
-LAZY_SAMPLING_ENTRIES = 8_000_000
+#: step of the plain sampling then reads more than 32 MB of atoms, and the lazy one
+#: is the faster (``benchmarks/first_fit.py``; docs/performance.md).
+LAZY_SAMPLING_ENTRIES = 4_000_000
 
 
 def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
