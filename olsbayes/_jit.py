@@ -9,7 +9,8 @@ and, with no writable folder at all, turns saving off (one warning: every
 process compiles again).  It also prints one line on stderr the first time in a
 process that one of the package's kernels is compiled rather than loaded, since
 compiling takes far longer than loading (``olsbayes compile`` does it ahead of
-time).
+time; :func:`olsbayes._notice.notice`, which the command line's ``--quiet``
+silences).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
+from ._notice import notice
 from .errors import OlsBayesWarning
 
 __all__ = ["prepare", "cache_location", "announced"]
@@ -118,9 +120,8 @@ def prepare() -> None:
                 dispatcher._cache.disable()
             if not _STATE["said"]:
                 _STATE["said"] = True
-                print("olsbayes: compiling numerical kernels for their first use on this "
-                      "machine (once; `olsbayes compile` does it ahead of time) ...",
-                      file=sys.stderr, flush=True)
+                notice("compiling numerical kernels for their first use on this machine "
+                       "(once; `olsbayes compile` does it ahead of time) ...")
 
         def on_end(self, ev) -> None:
             pass

@@ -20,6 +20,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 
+from .._notice import silenced
 from ..errors import OlsBayesError, OlsBayesWarning
 from ._common import OneLineParser
 
@@ -73,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version, usage errors (already printed)
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     args.warnings_seen = []  # what --json reports as "warnings" (see _common.emit)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), silenced(getattr(args, "quiet", False)):
         warnings.showwarning = _warning_printer(args.warnings_seen)
         warnings.simplefilter("default", OlsBayesWarning)  # always shown, never fatal
         try:

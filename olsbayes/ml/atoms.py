@@ -9,11 +9,11 @@ Levenberg–Marquardt refinement, i.e. a fraction of the array's resolution.
 from __future__ import annotations
 
 import hashlib
-import sys
 
 import numpy as np
 
 from .._budget import check_memory
+from .._notice import notice
 from .._validation import finite_array, positive_float
 from ..circular import wrap_angle
 from ..errors import InputError
@@ -155,9 +155,8 @@ NOTICE_ENTRIES = 50_000_000
 def _responses(model: Model, grid: np.ndarray) -> np.ndarray:
     """The atoms of ``grid`` (read-only), with one stderr line when they are many."""
     if grid.shape[0] * model.n_sensors > NOTICE_ENTRIES:
-        print(f"olsbayes: building the search over {grid.shape[0]:,} candidate locations x "
-              f"{model.n_sensors:,} sub-sensors (once per model and grid; seconds) ...",
-              file=sys.stderr, flush=True)
+        notice(f"building the search over {grid.shape[0]:,} candidate locations x "
+               f"{model.n_sensors:,} sub-sensors (once per model and grid; seconds) ...")
     return _readonly(model.response(np.column_stack([grid, np.ones(grid.shape[0])])))
 
 

@@ -62,3 +62,18 @@ def test_demo_prints_each_part_as_it_is_computed(capsys, monkeypatch):
     out = capsys.readouterr().out
     assert "Maximum-likelihood estimate" in out and "CRLB" in out
     assert "Evidence for K" not in out
+
+
+def test_building_a_large_search_says_so_unless_quiet(monkeypatch, capsys):
+    """The set-up line of a large search (atoms beyond NOTICE_ENTRIES) prints on stderr
+    for `olsbayes fit`, not with --quiet, and the silence ends with the command."""
+    from olsbayes._notice import notice
+
+    monkeypatch.setattr("olsbayes.ml.atoms.NOTICE_ENTRIES", 100)
+    argv = ["fit", "--seed", "1", "--set", "sensor.n=12"]
+    assert main(argv + ["--quiet"]) == 0
+    assert "olsbayes: building the search" not in capsys.readouterr().err
+    assert main(argv) == 0
+    assert "olsbayes: building the search" in capsys.readouterr().err
+    notice("still heard")
+    assert capsys.readouterr().err == "olsbayes: still heard\n"
