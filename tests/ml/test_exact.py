@@ -149,3 +149,20 @@ def test_compiled_scan_equals_numpy_reference(n, k):
     gain_f, states_f, count_f, feas_f, n_f = _exact_kernel.scan(*args, count_feasible=False)
     assert feas_f is None and n_f == n_c and np.array_equal(count_f, count_c)
     assert np.array_equal(gain_f, gain_c) and np.array_equal(states_f, states_c)
+
+
+def test_a_long_enumeration_says_so_on_stderr(monkeypatch, capsys):
+    """More than NOTICE_CONFIGURATIONS configurations (per call, all data vectors)
+    print one line on stderr with their number; fewer print nothing."""
+    from olsbayes.ml import exact
+
+    model = ob.Model(ob.Ring(8), 1e-2)
+    data = model.simulate(ob.Scene(directions=[0.3, 2.0], intensities=[1.0, 0.8]), rng=1,
+                          size=2)
+    ob.fit_ml(model, data, n_sources=2, method="exact")
+    assert "enumerating" not in capsys.readouterr().err
+    n = exact.n_configurations(model, 2)
+    monkeypatch.setattr(exact, "NOTICE_CONFIGURATIONS", 2 * n - 1)
+    ob.fit_ml(model, data, n_sources=2, method="exact")
+    (line,) = [x for x in capsys.readouterr().err.splitlines() if "enumerating" in x]
+    assert f"enumerating {2 * n:.3g} configurations of K = 2" in line
