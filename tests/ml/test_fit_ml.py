@@ -315,3 +315,19 @@ def test_compiled_post_fit_checks_match_numpy():
     np.testing.assert_array_equal(ck.close_or_weak(x, 4 * h, 0.05), want)
 
 
+
+
+def test_a_large_batch_says_so_on_stderr(monkeypatch, capsys):
+    """Batches beyond NOTICE_BATCH data vectors x sub-sensors x K^2 print one line
+    on stderr before they start; single vectors and small batches print nothing."""
+    from olsbayes.ml import plain
+
+    model = ob.Model(ob.Ring(12), 1e-2)
+    data = model.simulate(ob.Scene(directions=[0.3], intensities=[1.0]), rng=1, size=3)
+    monkeypatch.setattr(plain, "NOTICE_BATCH", 3 * 12 - 1)
+    ob.fit_ml(model, data[0], n_sources=1)
+    ob.fit_ml(model, data[:2], n_sources=1)
+    assert "fitting" not in capsys.readouterr().err
+    ob.fit_ml(model, data, n_sources=1)
+    (line,) = [x for x in capsys.readouterr().err.splitlines() if "fitting" in x]
+    assert line == "olsbayes: fitting 3 data vectors of 12 readings at K = 1 (fast) ..."
