@@ -96,7 +96,7 @@ METHODS = tuple(_METHODS)
 BLOCK_ROWS = 2048
 
 #: Batches of more than this many data vectors x sub-sensors x K^2 say so on stderr
-#: before they start: one unit cost 0.3-1 us CPU in batched fast fits (a 10,000-ring
+#: before they start: one unit cost 0.2-1 us CPU in batched fast fits (a 10,000-ring
 #: at K = 2 0.32 us, a 3000-sphere at K = 4 1.0 us), so such a call takes seconds.
 NOTICE_BATCH = 5_000_000
 
