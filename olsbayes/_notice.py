@@ -1,9 +1,10 @@
 """Status lines on stderr for long steps that show no progress bar of their own.
 
-Compiling the kernels on their first use and building the ML search of a large
-array each print one line as they start (``olsbayes: ...``).  The command line's
-``--quiet`` runs its command inside :func:`silenced`; warnings and errors still
-print.
+Steps that take seconds without a bar print one line as they start (``olsbayes:
+...``): compiling the kernels on their first use, building the ML search of a
+large array, a large batch of ML fits, a long exact enumeration.  The command
+line's ``--quiet`` runs its command inside :func:`silenced`; warnings and errors
+still print.
 """
 
 from __future__ import annotations

@@ -148,7 +148,7 @@ _ATOM_GRIDS = 8
 
 #: Atom matrices of more entries (M N) than this say on stderr that they are being
 #: built: with the fast search's unit atoms and coarse subsets beside them the first
-#: fit then takes more than ~5 s (a 40 x 40 plate, 62,410 x 1,600 entries: ~8 s).
+#: fit then takes more than ~5 s (a 40 x 40 plate, 62,410 x 1,600 entries: 6-8 s).
 NOTICE_ENTRIES = 50_000_000
 
 

@@ -315,8 +315,6 @@ def test_compiled_post_fit_checks_match_numpy():
     np.testing.assert_array_equal(ck.close_or_weak(x, 4 * h, 0.05), want)
 
 
-
-
 def test_a_large_batch_says_so_on_stderr(monkeypatch, capsys):
     """Batches beyond NOTICE_BATCH data vectors x sub-sensors x K^2 print one line
     on stderr before they start; single vectors and small batches print nothing."""

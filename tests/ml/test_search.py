@@ -269,7 +269,7 @@ def test_large_unit_atom_farthest_point_sampling_is_farthest_point_sampling(lazy
     plate's 3-D grid) take correlations by matrix-vector products, and beyond
     LAZY_SAMPLING_ENTRIES (here lowered to this plate's size) bring distances up to
     date lazily: each atom added is still (to rounding) the live atom farthest from
-    those chosen before it, ties to the lowest index; dead atoms are never chosen."""
+    those chosen before it; dead atoms are never chosen."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
     from olsbayes.ml.fast import tuples
     from olsbayes.ml.fast.tuples import GRAM_SAMPLING_ATOMS, GRAM_SAMPLING_ENTRIES, coarse_subsets

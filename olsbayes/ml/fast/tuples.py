@@ -99,9 +99,9 @@ def _lazy_farthest(g: np.ndarray, inv: np.ndarray, seed: int, dist: np.ndarray,
     """Farthest-point sampling of the unit atoms ``g * inv[:, None]`` (M, N).
 
     ``dist`` (M,): the atoms' distances to atom ``seed`` (dead atoms, ``inv`` = 0,
-    at -1: never chosen).  An atom's distance to the chosen
-    atoms only shrinks as atoms are added, so a distance not yet brought up to date
-    is an upper bound.  The atoms sit in a max-heap of such bounds; the top one is
+    at -1: never chosen); updated in place.  An atom's distance to the chosen atoms
+    only shrinks as atoms are added, so a distance not yet brought up to date is an
+    upper bound.  The atoms sit in a max-heap of such bounds; the top one is
     brought up to date (its correlations with the atoms chosen since its last
     update) and chosen if it still heads the heap, ties going to the lower index as
     with ``argmax`` -- the same atoms as the plain sampling up to rounding.  On a
