@@ -1,8 +1,9 @@
 """The ring quadrature evidence against nested sampling and the grid reference.
 
 For K = 1 and 2 on a well-separated and a close two-source scene (ring N = 30,
-sigma = 0.01, intensities Uniform(0, 2)) and on the escalated scenes of the
-resolution-limit sweep: log Z by :func:`olsbayes.select.ring_log_evidence`
+sigma = 0.01, intensities Uniform(0, 2)), on the escalated scenes of the
+resolution-limit sweep and on a pair half a spacing apart at sigma = 1e-4 (whose
+K = 2 needs cells aligned per direction): log Z by :func:`olsbayes.select.ring_log_evidence`
 (three seeds: mean, stated error, scatter of the seeds, CPU per call) and by
 nested sampling as ``select_k`` runs it (``NestedOptions()``: three dynesty
 runs combined, their stated error, CPU).  Both integrate the labelled scene
@@ -44,6 +45,9 @@ def _scenes():
             rng.integers(2**31)
             if t == 0 and sep in (0.25, 0.75):
                 yield f"sweep sep {sep} h #0", model, d
+    model = Model(Ring(30), 1e-4)  # square cells exceed the budget: cells aligned per direction
+    yield "close pair 0.5 h, sigma 1e-4", model, model.simulate(
+        np.array([0.3, 1.0, 0.3 + 0.5 * H, 1.0]), rng=np.random.default_rng(0))
 
 
 def main(argv=None) -> int:

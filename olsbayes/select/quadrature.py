@@ -6,7 +6,7 @@ is Gaussian in ``I`` with mean ``I_hat = A^-1 G^T y`` and covariance
 ``S = sigma^2 A^-1`` (``A = G^T G``), so the box prior Uniform(lo, hi)^K of the
 intensities integrates exactly::
 
-    int L dI / (hi - lo)^K = (2 pi sigma^2)^(-N/2) exp(-(|y|^2 - y^T G I_hat) / 2 sigma^2)
+    int L dI / (hi - lo)^K = (2 pi sigma^2)^(-N/2) exp(-|y - G I_hat|^2 / 2 sigma^2)
                              (2 pi)^(K/2) sqrt(det S) P(lo <= X <= hi) / (hi - lo)^K,
 
 ``X ~ N(I_hat, S)``: a normal CDF difference for K = 1, a bivariate-normal
@@ -17,10 +17,18 @@ two-level grid: coarse cells are screened by the unconstrained best fit at
 their centre (an upper bound of the likelihood over the intensities) with a
 slack for the likelihood's curvature across a cell, the kept cells are split
 into fine cells of about one posterior width (from the ML fits' Fisher
-information), fine cells within ``margin`` nats of the best are kept, and each
-gets ``per_cell`` uniform draws (more where the error is above 2 %).  The
-stratified estimate of Z carries its own standard error; cells dropped by the
-screen hold less than ``e^-margin`` of the best cell's mass each.
+information), or, where those exceed the budget, of about one local width per
+direction (:mod:`olsbayes.select.cells`), fine cells within ``margin`` nats of
+the best are kept, and each gets ``per_cell`` uniform draws (more where the
+error is above 2 %).  The stratified estimate of Z, each cell's mean weighted
+by its area, carries its own standard error; cells dropped by the screen hold
+less than ``e^-margin`` of the best cell's mass each.
+
+Two nearly coincident directions make ``A`` nearly singular: ``|y|^2 - y^T G
+I_hat`` then loses its digits (at sigma = 1e-4 it came out thousands of nats
+above the best fit) and the misfit is taken from the residual itself, and the
+rectangle probability, far in an elongated Gaussian's tail, is bounded by its
+smaller marginal instead of by the CDFs' rounding.
 """
 
 from __future__ import annotations
@@ -32,9 +40,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import log_ndtr, ndtr, owens_t
 
-from .._budget import memory_limit
 from ..errors import InputError
 from ..priors import CircularUniform, ScenePrior, Uniform
+from .cells import _CHUNK, _MAX_CELLS, projection_gain, screen, unit_responses
 
 __all__ = ["QuadratureEvidence", "qualifies", "box_log_prob", "ring_log_evidence",
            "unit_responses", "projection_gain"]
@@ -42,16 +50,10 @@ __all__ = ["QuadratureEvidence", "qualifies", "box_log_prob", "ring_log_evidence
 #: Stated standard error (nats) above which the quadrature value is not used.
 MAX_ERROR = 0.1
 _MARGIN = 25.0      # nats below the best cell from which fine cells are dropped
-_SAFETY = 4.0       # curvature slack of the coarse screen, in units of its quadratic estimate
-_COARSE = 8.0       # coarse cell width in narrowest posterior widths
-_FINE = (0.25, 2.0)  # fine cell width in narrowest posterior widths, K = 1 and 2
-_WIDEST = 8.0       # the widest fine cells, in narrowest posterior widths, within budget
 _PER_CELL = 2       # uniform draws per fine cell (>= 2 for the within-cell variance)
 _TARGET = 0.02      # relative error beyond which the cells get more draws (within budget)
-_BYTES_PER_CELL = 8.0 * 20
-_MAX_CELLS = 2**20   # cells per level (beyond: a cost out of proportion; nested sampling)
-_MAX_DRAWN = 2**17   # fine cells that get draws (beyond: wider fine cells)
-_CHUNK = 2**15       # draws evaluated at once (their responses: _CHUNK x K x N floats)
+_TAIL = 1e-10       # box probabilities below which the marginal bound replaces the CDFs'
+_ILL = 1e-6         # det(Gram) / (a c) below which the misfit comes from the residual
 
 
 @dataclass(frozen=True)
@@ -102,29 +104,6 @@ def qualifies(model, prior: object) -> bool:
         and isinstance(prior.intensity, Uniform))
 
 
-def unit_responses(model, theta: np.ndarray) -> np.ndarray:
-    """Readings (n, N) of unit-intensity ring sources at angles ``theta`` (n,) rad."""
-    return model.response(np.stack([theta, np.ones_like(theta)], axis=-1))
-
-
-def projection_gain(gd_i: np.ndarray, gd_j: np.ndarray | None, a: np.ndarray,
-                    c: np.ndarray | None = None, b: np.ndarray | None = None) -> np.ndarray:
-    """|projection of the readings on span(g_i[, g_j])|^2, the unconstrained best fit.
-
-    ``gd = g . y``; ``a = |g_i|^2``, ``c = |g_j|^2``, ``b = g_i . g_j`` (broadcast).
-    One direction when ``gd_j`` is None; two coincident directions (Gram matrix
-    singular to rounding) count as one.  ``(|y|^2 - gain) / 2 sigma^2`` is then the
-    smallest misfit over all intensities (an upper bound of the log-likelihood).
-    """
-    single_i = gd_i**2 / a
-    if gd_j is None:
-        return single_i
-    det = a * c - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = (c * gd_i**2 - 2 * b * gd_i * gd_j + a * gd_j**2) / det
-    return np.where(det > 1e-12 * a * c, q, np.maximum(single_i, gd_j**2 / c))
-
-
 def _log_interval(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """log(Phi(hi) - Phi(lo)) for lo <= hi, accurate in both tails."""
     upper = lo > 0  # both in the upper tail: use the reflection
@@ -170,7 +149,10 @@ def box_log_prob(mean: np.ndarray, cov: np.ndarray, lo: float, hi: float
         Bound on the absolute rounding error of P (0 for K = 1, whose log is
         accurate to rounding in both tails; the four bivariate CDFs of K = 2,
         each accurate to ~1e-15, after reflecting each coordinate so that the
-        box lies on the side of the mean's lower tail).
+        box lies on the side of the mean's lower tail).  Where the smaller
+        marginal probability ``P_m`` of K = 2 is below ``_TAIL`` (1e-10), P and
+        its value both lie in [0, P_m]: the value is capped at P_m and the
+        bound is ``min(P_m, 4e-15)``.
     """
     mean, cov = np.asarray(mean, float), np.asarray(cov, float)
     if mean.ndim != 2 or mean.shape[1] not in (1, 2) or cov.shape != mean.shape + mean.shape[1:]:
@@ -181,13 +163,19 @@ def box_log_prob(mean: np.ndarray, cov: np.ndarray, lo: float, hi: float
     if mean.shape[1] == 1:
         return _log_interval(low[:, 0], high[:, 0]), np.zeros(len(mean))
     rho = np.clip(cov[:, 0, 1] / (sd[:, 0] * sd[:, 1]), -1 + 1e-15, 1 - 1e-15)
+    # the smaller marginal probability bounds P; below _TAIL it bounds the value and its
+    # error better than the CDFs' rounding (a box far in the tail of an elongated Gaussian)
+    log_m = np.min(_log_interval(low, high), axis=1)
+    tail = log_m < math.log(_TAIL)
     flip = low + high > 0  # mean below the box's centre: reflect so the box is in a lower tail
     low, high = np.where(flip, -high, low), np.where(flip, -low, high)
     rho = np.where(flip[:, 0] != flip[:, 1], -rho, rho)
     p = (_bvn(high[:, 0], high[:, 1], rho) - _bvn(low[:, 0], high[:, 1], rho)
          - _bvn(high[:, 0], low[:, 1], rho) + _bvn(low[:, 0], low[:, 1], rho))
     with np.errstate(divide="ignore"):
-        return np.log(np.maximum(p, 0.0)), np.full(len(mean), 4e-15)
+        log_p = np.log(np.maximum(p, 0.0))
+    return (np.where(tail, np.minimum(log_p, log_m), log_p),
+            np.where(tail, np.minimum(np.exp(log_m), 4e-15), 4e-15))
 
 
 def _log_integrand(model, data: np.ndarray, theta: np.ndarray, lo: float, hi: float
@@ -210,8 +198,12 @@ def _log_integrand(model, data: np.ndarray, theta: np.ndarray, lo: float, hi: fl
     gram = np.where(ok[:, None, None], gram, np.eye(k))
     inv = np.linalg.inv(gram)
     i_hat = np.einsum("nij,nj->ni", inv, rhs)
-    gain = np.einsum("ni,ni->n", i_hat, rhs)
-    log_rest = (-0.5 * len(data) * math.log(2 * math.pi * s2) - 0.5 * (data @ data - gain) / s2
+    misfit = data @ data - np.einsum("ni,ni->n", i_hat, rhs)
+    ill = ok & (det < _ILL * np.prod(diag, axis=1)) if k == 2 else ok & False
+    if np.any(ill):  # |y|^2 - gain has lost its digits there: the residual itself
+        res = data - np.einsum("ni,nis->ns", i_hat[ill], g[ill])
+        misfit[ill] = np.einsum("ns,ns->n", res, res)
+    log_rest = (-0.5 * len(data) * math.log(2 * math.pi * s2) - 0.5 * misfit / s2
                 + 0.5 * k * math.log(2 * math.pi * s2) - 0.5 * np.log(np.where(ok, det, 1.0))
                 - k * math.log(hi - lo))
     log_p, abs_err = box_log_prob(i_hat, s2 * inv, lo, hi)
@@ -234,70 +226,6 @@ def _narrowest_width(model, fits: list[np.ndarray]) -> float:
         if np.all(np.isfinite(f)) and f.size:
             lam = max(lam, float(np.max(np.linalg.eigvalsh(f))))
     return 1.0 / math.sqrt(lam) if lam > 0 else math.nan
-
-
-def _gains(model, data: np.ndarray, width: float, idx: np.ndarray) -> np.ndarray:
-    """Unconstrained best-fit gain at the centres of the cells ``idx`` (m, K) of ``width`` rad."""
-    used, idx = np.unique(idx, return_inverse=True)  # (m, K) indices into used
-    g = unit_responses(model, -math.pi + width * (used + 0.5))
-    gd, a = g @ data, np.einsum("ij,ij->i", g, g)
-    if idx.shape[1] == 1:
-        return projection_gain(gd[idx[:, 0]], None, a[idx[:, 0]])
-    i, j = idx[:, 0], idx[:, 1]
-    b = np.concatenate([np.einsum("ms,ms->m", g[i[c:c + _CHUNK]], g[j[c:c + _CHUNK]])
-                        for c in range(0, len(i), _CHUNK)])  # bounded memory per pass
-    return projection_gain(gd[i], gd[j], a[i], a[j], b)
-
-
-def _grid(k: int, n: int) -> np.ndarray:
-    """All cells (n^K, K) of an n-point grid per direction."""
-    return np.stack(np.meshgrid(*[np.arange(n)] * k, indexing="ij"), -1).reshape(-1, k)
-
-
-def _refine(kept: np.ndarray, r: int) -> np.ndarray:
-    """The r^K fine cells (m r^K, K) inside each coarse cell of ``kept`` (m, K)."""
-    sub = _grid(kept.shape[1], r)
-    return (kept[:, None, :] * r + sub[None, :, :]).reshape(-1, kept.shape[1])
-
-
-def _slack(k: int, width: float, sd: float) -> float:
-    """Curvature slack (nats): the largest drop of log L from a cell's best point to its centre.
-
-    ``_SAFETY`` times the quadratic estimate ``0.5 K (width / 2)^2 / sd^2`` at the
-    largest curvature ``1 / sd^2``.
-    """
-    return _SAFETY * 0.5 * k * (0.5 * width / sd) ** 2
-
-
-def _screen_cells(model, data: np.ndarray, k: int, sd: float, margin: float
-                  ) -> tuple[np.ndarray, int] | str:
-    """Fine cells (m, K) worth integrating and the fine grid size, or why none.
-
-    Coarse cells of ~``_COARSE`` sd (fewer when the grid would exceed the cell
-    budget) are kept when their centre's bound is within ``margin`` plus the
-    curvature slack of the best; each is split into r^K fine cells of ~``_FINE`` sd,
-    kept on the same rule.  Where the fine cells would exceed the budget, or more
-    than ``_MAX_DRAWN`` are kept, r is halved, down to cells of ``_WIDEST`` sd (a
-    larger stated error, which the caller checks).
-    """
-    budget = min(memory_limit() / _BYTES_PER_CELL, _MAX_CELLS)
-    n0 = min(max(64, math.ceil(2 * math.pi / (_COARSE * sd))), int(budget ** (1 / k)))
-    s2, w0 = 2 * model.sigma**2, 2 * math.pi / n0
-    cells = _grid(k, n0)
-    ll = _gains(model, data, w0, cells) / s2
-    kept = cells[ll >= np.max(ll) - margin - _slack(k, w0, sd)]
-    r, r_min = (max(1, math.ceil(w0 / (f * sd))) for f in (_FINE[k - 1], _WIDEST))
-    while True:
-        if float(len(kept)) * r**k <= budget:
-            fine, n1 = _refine(kept, r), n0 * r
-            ll = _gains(model, data, 2 * math.pi / n1, fine) / s2
-            fine = fine[ll >= np.max(ll) - margin - _slack(k, 2 * math.pi / n1, sd)]
-            if len(fine) <= _MAX_DRAWN:
-                return fine, n1
-        if r <= r_min:
-            return (f"{len(kept)} coarse cells of {n0}^{k} kept, beyond the budget of "
-                    f"{min(budget, _MAX_DRAWN):.3g} fine cells of {_WIDEST:g} sd")
-        r = max(r_min, r // 2)
 
 
 def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.ndarray], *,
@@ -332,32 +260,31 @@ def ring_log_evidence(model, data: np.ndarray, prior: ScenePrior, fits: list[np.
     data, k = _check(model, data, prior, margin, per_cell), prior.n_sources
     sd = _narrowest_width(model, fits)
     found = ("no finite Fisher information at the ML fits" if not sd > 0
-             else _screen_cells(model, data, k, sd, margin))
+             else screen(model, data, k, sd, margin, prior.intensity.lo))
     if isinstance(found, str):
         return QuadratureEvidence(math.nan, math.nan, 0, 0, time.perf_counter() - t0, found)
-    cells, n1 = found
-    lo, hi, w1 = prior.intensity.lo, prior.intensity.hi, 2 * math.pi / n1
+    cells, lo, hi = found, prior.intensity.lo, prior.intensity.hi
 
     def draws(m: int) -> tuple[np.ndarray, np.ndarray]:
-        rep = np.repeat(cells, m, axis=0)
-        theta = -math.pi + w1 * (rep + rng.uniform(size=rep.shape))
+        theta = cells.draw(m, rng)
         parts = [_log_integrand(model, data, theta[i:i + _CHUNK], lo, hi)
                  for i in range(0, len(theta), _CHUNK)]  # bounded memory per pass
-        return tuple(np.concatenate(v).reshape(len(cells), m) for v in zip(*parts))
+        return tuple(np.concatenate(v).reshape(len(cells.index), m) for v in zip(*parts))
 
     log_f, log_err = draws(per_cell)
     if not np.any(np.isfinite(log_f)):  # every draw on coincident directions (a null set)
-        return QuadratureEvidence(math.nan, math.nan, len(cells), n1,
+        return QuadratureEvidence(math.nan, math.nan, len(cells.index), cells.n_grid,
                                   time.perf_counter() - t0, "no draw off the diagonal")
-    rel = _stratified(log_f, log_err)[1]
+    rel_area, log_area = cells.log_area()
+    rel = _stratified(log_f, log_err, rel_area)[1]
     more = math.ceil(per_cell * min(rel / _TARGET, 1e3) ** 2) - per_cell
-    if more > 0 and len(cells) * (per_cell + more) <= _MAX_CELLS:
+    if more > 0 and len(cells.index) * (per_cell + more) <= _MAX_CELLS:
         extra = draws(more)  # pooled with the first draws
         log_f, log_err = (np.concatenate([a, b], axis=1) for a, b in zip((log_f, log_err),
                                                                           extra))
-    log_total, rel = _stratified(log_f, log_err)
-    log_z = float(log_total + k * math.log(w1 / (2 * math.pi)))
-    return QuadratureEvidence(log_z, rel, len(cells), n1, time.perf_counter() - t0)
+    log_total, rel = _stratified(log_f, log_err, rel_area)
+    return QuadratureEvidence(float(log_total + log_area), rel, len(cells.index), cells.n_grid,
+                              time.perf_counter() - t0)
 
 
 def _check(model, data: object, prior: object, margin: object, per_cell: object) -> np.ndarray:
@@ -377,15 +304,16 @@ def _check(model, data: object, prior: object, margin: object, per_cell: object)
     return data
 
 
-def _stratified(log_f: np.ndarray, log_err: np.ndarray) -> tuple[float, float]:
-    """log of the sum over cells of the in-cell mean of f (M, m), and its relative error.
+def _stratified(log_f: np.ndarray, log_err: np.ndarray, area: np.ndarray) -> tuple[float, float]:
+    """log of the area-weighted sum over cells of the in-cell mean of f (M, m), relative error.
 
-    The error: the stratified sampling error (within-cell variances) plus the
-    box probabilities' rounding.
+    ``area`` (M,): each cell's area relative to a reference.  The error: the
+    stratified sampling error (within-cell variances) plus the box
+    probabilities' rounding.
     """
     top = float(np.max(log_f))
     f, m = np.exp(log_f - top), log_f.shape[1]
-    total = float(np.sum(f.mean(axis=1)))
-    var = float(np.sum(f.var(axis=1, ddof=1)) / m)
-    rounding = float(np.sum(np.exp(log_err - top))) / m
+    total = float(np.sum(f.mean(axis=1) * area))
+    var = float(np.sum(f.var(axis=1, ddof=1) * area**2) / m)
+    rounding = float(np.sum(np.exp(log_err - top) * area[:, None])) / m
     return top + math.log(total), (math.sqrt(var) + rounding) / total
