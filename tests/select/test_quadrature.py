@@ -107,6 +107,22 @@ def test_two_sources_match_the_reference_within_the_stated_errors(scene, aligned
     assert 0.5 < np.std(values, ddof=1) / np.mean(errors) < 1.5
 
 
+def test_aligned_cells_tile_their_coarse_cells():
+    """Each coarse cell's r0 x r1 fine cells lie inside it, once each, and their areas add
+    up to its area (the stratified estimate's weights)."""
+    rng = np.random.default_rng(0)
+    kept = np.unique(rng.integers(0, 64, (40, 2)), axis=0)
+    r = rng.integers(1, 9, kept.shape)
+    w0 = 2 * math.pi / 64
+    idx, width, owner = cells._split(kept, r, w0)
+    np.testing.assert_array_equal(idx // r[owner], kept[owner])
+    for c in range(len(kept)):
+        sub = {tuple(v) for v in (idx[owner == c] % r[c])}
+        assert len(sub) == np.sum(owner == c) == r[c, 0] * r[c, 1]
+    area = np.bincount(owner, weights=np.prod(width, axis=1))
+    np.testing.assert_allclose(area, w0**2, rtol=1e-13)
+
+
 def test_a_close_pair_at_low_noise_gets_cells_aligned_with_the_likelihood(monkeypatch):
     """sigma = 1e-4, two sources half a spacing apart: square cells of <= 8 posterior
     widths exceed the budget (nested sampling took over, 12 s CPU); aligned cells give
