@@ -25,10 +25,10 @@ by its area, carries its own standard error; cells dropped by the screen hold
 less than ``e^-margin`` of the best cell's mass each.
 
 Two nearly coincident directions make ``A`` nearly singular: ``|y|^2 - y^T G
-I_hat`` then loses its digits (at sigma = 1e-4 it came out thousands of nats
-above the best fit) and the misfit is taken from the residual itself, and the
-rectangle probability, far in an elongated Gaussian's tail, is bounded by its
-smaller marginal instead of by the CDFs' rounding.
+I_hat`` then loses its digits (at sigma = 1e-4 it can exceed the best fit's
+log-likelihood by thousands of nats), so the misfit is taken from the residual
+itself there; and the rectangle probability, far in an elongated Gaussian's
+tail, is bounded by its smaller marginal instead of by the CDFs' rounding.
 """
 
 from __future__ import annotations
@@ -199,7 +199,7 @@ def _log_integrand(model, data: np.ndarray, theta: np.ndarray, lo: float, hi: fl
     inv = np.linalg.inv(gram)
     i_hat = np.einsum("nij,nj->ni", inv, rhs)
     misfit = data @ data - np.einsum("ni,ni->n", i_hat, rhs)
-    ill = ok & (det < _ILL * np.prod(diag, axis=1)) if k == 2 else ok & False
+    ill = ok & (det < _ILL * np.prod(diag, axis=1))  # never for K = 1 (det = a)
     if np.any(ill):  # |y|^2 - gain has lost its digits there: the residual itself
         res = data - np.einsum("ni,nis->ns", i_hat[ill], g[ill])
         misfit[ill] = np.einsum("ns,ns->n", res, res)
