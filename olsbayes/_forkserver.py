@@ -1,12 +1,28 @@
 """What the process pool's fork server imports once, before it forks any worker.
 
-Workers of ``executor="processes"`` fork from one server process per study
-process; whatever the server has imported they start with, instead of each
-importing numpy, scipy and the package anew.  The compiled kernels' modules are
-imported too (their machine code loads from numba's cache on first use).
+Workers of ``executor="processes"`` (and of a local Dask cluster) fork from one
+server process per study process; whatever the server has imported they start
+with, instead of each importing numpy, scipy and the package anew.  The compiled
+kernels' modules are imported too, but their machine code loads from numba's
+cache on each kernel's first call, which costs a worker's first trial 0.3-0.45 s
+CPU.  So once the workers the server has forked are all gone (the study's pool
+or local Dask cluster has closed), it runs a few small fits
+(:func:`_load_kernels`, ~0.6 s CPU) in a thread at the lowest CPU priority, and
+every worker it forks afterwards -- the next pool or cluster of the study's
+process -- starts with those kernels loaded (its first trial then costs ~0.01 s).
+A fork that comes meanwhile waits for that thread: a fork while another thread
+holds a lock (the import lock, numba's compiler lock) could leave the child
+waiting forever.  Where the server's children or a thread's priority cannot be
+seen or set (outside Linux) it loads nothing; nor does this module do anything
+in a process that is not the fork server.
 """
 
 from __future__ import annotations
+
+import os
+import sys
+import threading
+import warnings
 
 import olsbayes  # noqa: F401  (the package, with numpy, scipy)
 import olsbayes.ml._numba.escalate  # noqa: F401
@@ -21,3 +37,108 @@ import olsbayes.ml.fast  # noqa: F401
 import olsbayes.studies._work  # noqa: F401
 import olsbayes.studies.estimators  # noqa: F401
 import olsbayes.studies.trials  # noqa: F401
+
+__all__ = ["IDLE"]
+
+#: Seconds between the fork server's looks for children left (then it loads the kernels).
+IDLE = 0.5
+
+
+def _load_kernels() -> None:
+    """One fast fit per K = 1..4 on a small ring and K = 1 on a small sphere."""
+    import numpy as np
+
+    from olsbayes import Model, Ring, Sphere
+    from olsbayes.ml import fit_ml
+
+    ring = Model(Ring(16), 0.01)
+    for k in range(1, 5):
+        x = np.column_stack([0.3 + 1.5 * np.arange(k), np.linspace(1.0, 0.6, k)]).ravel()
+        fit_ml(ring, ring.response(x), k, warn=False)
+    sphere = Model(Sphere.fibonacci(20), 0.01)
+    fit_ml(sphere, sphere.response(np.array([0.3, 0.2, 1.0])), 1, warn=False)
+
+
+class _IdleLoad:
+    """The server's fork hooks: load the kernels once, when it has no child left.
+
+    A timer looks every :data:`IDLE` seconds whether the server still has children
+    (a pool's or a Dask cluster's workers); once none is left it loads the kernels
+    at the lowest CPU priority, so that a running study never waits for it.
+    """
+
+    def __init__(self) -> None:
+        self.pid = os.getpid()
+        self.timer: threading.Timer | None = None
+        self.hold = False  # a fork is under way: schedule nothing
+        self.done = False
+
+    def before_fork(self) -> None:
+        """Stop the timer, or wait for a running load: no other thread at a fork."""
+        if os.getpid() != self.pid:
+            return
+        self.hold = True
+        while self.timer is not None and self.timer.is_alive():
+            timer = self.timer
+            timer.cancel()
+            timer.join()
+
+    def after_fork(self) -> None:
+        """In the server after each fork: look again for idleness from now on."""
+        if os.getpid() == self.pid and not self.done:
+            self.hold = False
+            self._schedule()
+
+    def _schedule(self) -> None:
+        self.timer = threading.Timer(IDLE, self._tick)
+        self.timer.daemon = True
+        self.timer.start()
+
+    def _tick(self) -> None:
+        if self.hold or self.done:
+            return
+        busy = _has_children()
+        if busy:
+            self._schedule()
+            return
+        self.done = True
+        if busy is None:  # children cannot be seen here: never compete with them
+            return
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
+        except (AttributeError, OSError):
+            return
+        from olsbayes._notice import silenced
+
+        with silenced(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                _load_kernels()
+            except Exception:  # noqa: BLE001 - an optimisation only: workers load on first use
+                pass
+
+
+def _has_children() -> bool | None:
+    """Whether the server has child processes (None where Linux's /proc cannot say)."""
+    try:
+        with open(f"/proc/self/task/{os.getpid()}/children") as f:
+            return bool(f.read().split())
+    except OSError:
+        return None
+
+
+def _in_fork_server() -> bool:
+    """Whether this module is being imported by the fork server's preload."""
+    from multiprocessing import forkserver
+
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_code is forkserver.main.__code__:
+            return True
+        frame = frame.f_back
+    return False
+
+
+_IDLE_LOAD = _IdleLoad() if _in_fork_server() else None
+if _IDLE_LOAD is not None:
+    os.register_at_fork(before=_IDLE_LOAD.before_fork, after_in_parent=_IDLE_LOAD.after_fork)

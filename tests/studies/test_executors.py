@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import os
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
@@ -59,6 +62,42 @@ def test_local_dask_workers_fork_from_the_package_fork_server():
                       progress=False)
     assert local.identical(run_study(noise_check, GRID, 24, executor="serial", rng=7,
                                      progress=False))
+
+
+_IDLE_SCRIPT = textwrap.dedent("""
+    import concurrent.futures as cf, time
+    from olsbayes.studies.executors import _forkserver
+
+    def loaded(_=0):
+        import olsbayes.ml._numba.lm as lm
+        return bool(lm._lm_all.signatures)  # machine code in memory, no call made here
+
+    if __name__ == "__main__":
+        ctx = _forkserver()
+        with cf.ProcessPoolExecutor(1, mp_context=ctx) as pool:
+            first = pool.submit(loaded).result()
+        for _ in range(120):  # seconds; ~2 when the kernels are in numba's cache
+            time.sleep(1.0)
+            with cf.ProcessPoolExecutor(1, mp_context=ctx) as pool:
+                later = pool.submit(loaded).result()
+            if later:
+                break
+        print(first, later)
+""")
+
+
+def test_the_fork_server_loads_the_kernels_while_idle(tmp_path):
+    """In a new process: the first worker starts without the compiled kernels in memory;
+    once the fork server has been idle it loads them, and later workers start with
+    them.  Importing the server's module anywhere else installs nothing."""
+    script = tmp_path / "idle_load.py"
+    script.write_text(_IDLE_SCRIPT)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         timeout=300, check=True)
+    assert out.stdout.split() == ["False", "True"], out.stdout + out.stderr
+    import olsbayes._forkserver as server
+
+    assert server._IDLE_LOAD is None
 
 
 def test_local_dask_cluster_runs_with_quiet_housekeeping_timers_only_there():
