@@ -7,14 +7,15 @@ kernels' modules are imported too, but their machine code loads from numba's
 cache on each kernel's first call, which costs a worker's first trial 0.3-0.45 s
 CPU.  So once the workers the server has forked are all gone (the study's pool
 or local Dask cluster has closed), it runs a few small fits
-(:func:`_load_kernels`, ~0.6 s CPU) in a thread at the lowest CPU priority, and
+(:func:`load_cached`, ~0.6 s CPU) in a thread at the lowest CPU priority, and
 every worker it forks afterwards -- the next pool or cluster of the study's
 process -- starts with those kernels loaded (its first trial then costs ~0.01 s).
 A fork that comes meanwhile waits for that thread: a fork while another thread
 holds a lock (the import lock, numba's compiler lock) could leave the child
-waiting forever.  Where the server's children or a thread's priority cannot be
-seen or set (outside Linux) it loads nothing; nor does this module do anything
-in a process that is not the fork server.
+waiting forever.  It only loads: a kernel missing from numba's cache stops the
+load rather than being compiled there.  Where the server's children or a
+thread's priority cannot be seen or set (outside Linux) it loads nothing; nor
+does this module do anything in a process that is not the fork server.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import olsbayes.studies._work  # noqa: F401
 import olsbayes.studies.estimators  # noqa: F401
 import olsbayes.studies.trials  # noqa: F401
 
-__all__ = ["IDLE"]
+__all__ = ["IDLE", "load_cached"]
 
 #: Seconds between the fork server's looks for children left (then it loads the kernels).
 IDLE = 0.5
@@ -108,14 +109,43 @@ class _IdleLoad:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
         except (AttributeError, OSError):
             return
-        from olsbayes._notice import silenced
+        load_cached()
 
+
+class _WouldCompile(Exception):
+    """A kernel is not in numba's cache: loading it would mean compiling it."""
+
+
+def load_cached() -> bool:
+    """Run :func:`_load_kernels` if every kernel it needs is in numba's cache.
+
+    A kernel missing from the cache is not compiled here (tens of seconds, during
+    which a fork would have to wait): the first compile aborts the load, and the
+    workers compile what they use, as without it.  Returns whether it loaded all.
+    """
+    from numba.core import event
+
+    from olsbayes._notice import silenced
+
+    class Refuse(event.Listener):
+        def on_start(self, ev) -> None:
+            if getattr(ev.data["dispatcher"].py_func, "__module__", "").startswith("olsbayes."):
+                raise _WouldCompile
+
+        def on_end(self, ev) -> None:
+            pass
+
+    listener = Refuse()
+    event.register("numba:compile", listener)
+    try:
         with silenced(), warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            try:
-                _load_kernels()
-            except Exception:  # noqa: BLE001 - an optimisation only: workers load on first use
-                pass
+            _load_kernels()
+        return True
+    except Exception:  # noqa: BLE001 - an optimisation only: workers load on first use
+        return False
+    finally:
+        event.unregister("numba:compile", listener)
 
 
 def _has_children() -> bool | None:

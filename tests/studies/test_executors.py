@@ -100,6 +100,17 @@ def test_the_fork_server_loads_the_kernels_while_idle(tmp_path):
     assert server._IDLE_LOAD is None
 
 
+def test_the_fork_server_loads_kernels_but_never_compiles_them(tmp_path):
+    """With an empty numba cache the server's load stops at the first kernel it would have
+    to compile (tens of seconds a waiting fork would pay): nothing compiled, nothing said."""
+    code = ("import olsbayes._forkserver as s, olsbayes.ml._numba.lm as lm; "
+            "print(s.load_cached(), len(lm._lm_all.signatures))")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300, check=True, env=env)
+    assert out.stdout.split() == ["False", "0"] and "compiling" not in out.stderr, out.stderr
+
+
 def test_local_dask_cluster_runs_with_quiet_housekeeping_timers_only_there():
     # the cluster run_study starts has no task profiler and slow ticks in its workers
     # and scheduler; the calling process's own Dask settings are left as they were
