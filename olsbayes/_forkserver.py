@@ -4,12 +4,12 @@ Workers of ``executor="processes"`` (and of a local Dask cluster) fork from one
 server process per study process; whatever the server has imported they start
 with, instead of each importing numpy, scipy and the package anew.  The compiled
 kernels' modules are imported too, but their machine code loads from numba's
-cache on each kernel's first call, which costs a worker's first trial 0.3-0.45 s
-CPU.  So once the workers the server has forked are all gone (the study's pool
-or local Dask cluster has closed), it runs a few small fits
-(:func:`load_cached`, ~0.6 s CPU) in a thread at the lowest CPU priority, and
-every worker it forks afterwards -- the next pool or cluster of the study's
-process -- starts with those kernels loaded (its first trial then costs ~0.01 s).
+cache on each kernel's first call, a cost each worker's first trial pays (the
+measurements are in ``docs/performance.md``).  So once the workers the server
+has forked are all gone (the study's pool or local Dask cluster has closed), it
+runs a few small fits (:func:`load_cached`) in a thread at the lowest CPU
+priority, and every worker it forks afterwards -- the next pool or cluster of the
+study's process -- starts with those kernels loaded.
 A fork that comes meanwhile waits for that thread: a fork while another thread
 holds a lock (the import lock, numba's compiler lock) could leave the child
 waiting forever.  It only loads: a kernel missing from numba's cache stops the
@@ -55,9 +55,9 @@ def _load_kernels() -> None:
     ring = Model(Ring(16), 0.01)
     for k in range(1, 5):
         x = np.column_stack([0.3 + 1.5 * np.arange(k), np.linspace(1.0, 0.6, k)]).ravel()
-        fit_ml(ring, ring.response(x), k, warn=False)
+        fit_ml(ring, ring.response(x), k, rng=0, warn=False)
     sphere = Model(Sphere.fibonacci(20), 0.01)
-    fit_ml(sphere, sphere.response(np.array([0.3, 0.2, 1.0])), 1, warn=False)
+    fit_ml(sphere, sphere.response(np.array([0.3, 0.2, 1.0])), 1, rng=0, warn=False)
 
 
 class _IdleLoad:
@@ -65,7 +65,7 @@ class _IdleLoad:
 
     A timer looks every :data:`IDLE` seconds whether the server still has children
     (a pool's or a Dask cluster's workers); once none is left it loads the kernels
-    at the lowest CPU priority, so that a running study never waits for it.
+    at the lowest CPU priority, so as not to compete with a study's own work.
     """
 
     def __init__(self) -> None:
