@@ -23,7 +23,6 @@ from __future__ import annotations
 import os
 import sys
 import threading
-import warnings
 
 import olsbayes  # noqa: F401  (the package, with numpy, scipy)
 import olsbayes.ml._numba.escalate  # noqa: F401
@@ -43,21 +42,6 @@ __all__ = ["IDLE", "load_cached"]
 
 #: Seconds between the fork server's looks for children left (then it loads the kernels).
 IDLE = 0.5
-
-
-def _load_kernels() -> None:
-    """One fast fit per K = 1..4 on a small ring and K = 1 on a small sphere."""
-    import numpy as np
-
-    from olsbayes import Model, Ring, Sphere
-    from olsbayes.ml import fit_ml
-
-    ring = Model(Ring(16), 0.01)
-    for k in range(1, 5):
-        x = np.column_stack([0.3 + 1.5 * np.arange(k), np.linspace(1.0, 0.6, k)]).ravel()
-        fit_ml(ring, ring.response(x), k, rng=0, warn=False)
-    sphere = Model(Sphere.fibonacci(20), 0.01)
-    fit_ml(sphere, sphere.response(np.array([0.3, 0.2, 1.0])), 1, rng=0, warn=False)
 
 
 class _IdleLoad:
@@ -117,7 +101,7 @@ class _WouldCompile(Exception):
 
 
 def load_cached() -> bool:
-    """Run :func:`_load_kernels` if every kernel it needs is in numba's cache.
+    """Run the small fast fits of :func:`olsbayes.ml.warmup.fast_fits` if their kernels are cached.
 
     A kernel missing from the cache is not compiled here (tens of seconds, during
     which a fork would have to wait): the first compile aborts the load, and the
@@ -126,6 +110,7 @@ def load_cached() -> bool:
     from numba.core import event
 
     from olsbayes._notice import silenced
+    from olsbayes.ml.warmup import fast_fits
 
     class Refuse(event.Listener):
         def on_start(self, ev) -> None:
@@ -138,9 +123,8 @@ def load_cached() -> bool:
     listener = Refuse()
     event.register("numba:compile", listener)
     try:
-        with silenced(), warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            _load_kernels()
+        with silenced():
+            fast_fits()
         return True
     except Exception:  # noqa: BLE001 - an optimisation only: workers load on first use
         return False

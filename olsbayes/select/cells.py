@@ -30,7 +30,7 @@ import numpy as np
 
 from .._budget import memory_limit
 
-__all__ = ["Cells", "screen", "aligned_cells", "unit_responses", "projection_gain"]
+__all__ = ["Cells", "cell_budget", "screen", "aligned_cells", "unit_responses", "projection_gain"]
 
 _SAFETY = 4.0       # curvature slack of the coarse screen, in units of its quadratic estimate
 _COARSE = 8.0       # coarse cell width in narrowest posterior widths
@@ -102,20 +102,25 @@ def projection_gain(gd_i: np.ndarray, gd_j: np.ndarray | None, a: np.ndarray,
     return np.where(det > 1e-12 * a * c, q, np.maximum(single_i, gd_j**2 / c))
 
 
-def _cross(g: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """``g[i] . g[j]`` row by row (m,), in passes of bounded memory."""
-    return np.concatenate([np.einsum("ms,ms->m", g[i[c:c + _CHUNK]], g[j[c:c + _CHUNK]])
-                           for c in range(0, len(i), _CHUNK)])
+def _pair_terms(g: np.ndarray, data: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``g_i . y, g_j . y, |g_i|^2, |g_j|^2, g_i . g_j`` (each (m,)) of the pairs ``idx`` (m, 2).
+
+    ``g`` (u, N): the responses the pairs index into; ``g_i . g_j`` in passes of
+    bounded memory.
+    """
+    gd, a = g @ data, np.einsum("ij,ij->i", g, g)
+    i, j = idx[:, 0], idx[:, 1]
+    b = np.concatenate([np.einsum("ms,ms->m", g[i[c:c + _CHUNK]], g[j[c:c + _CHUNK]])
+                        for c in range(0, len(i), _CHUNK)])
+    return gd[i], gd[j], a[i], a[j], b
 
 
 def _pair_gains(g: np.ndarray, data: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """Best-fit gain of the direction tuples ``idx`` (m, K) into the responses ``g`` (u, N)."""
-    gd, a = g @ data, np.einsum("ij,ij->i", g, g)
     if idx.shape[1] == 1:
+        gd, a = g @ data, np.einsum("ij,ij->i", g, g)
         return projection_gain(gd[idx[:, 0]], None, a[idx[:, 0]])
-    i, j = idx[:, 0], idx[:, 1]
-    b = _cross(g, i, j)
-    return projection_gain(gd[i], gd[j], a[i], a[j], b)
+    return projection_gain(*_pair_terms(g, data, idx))
 
 
 def _gains(model, data: np.ndarray, width: float, idx: np.ndarray) -> np.ndarray:
@@ -157,6 +162,11 @@ def _coarse(model, data: np.ndarray, k: int, sd: float, margin: float, budget: f
     return cells[ll >= np.max(ll) - margin - _slack(k, w0, sd)], n0
 
 
+def cell_budget() -> float:
+    """Cells per level the memory budget and :data:`_MAX_CELLS` allow."""
+    return min(memory_limit() / _BYTES_PER_CELL, _MAX_CELLS)
+
+
 def screen(model, data: np.ndarray, k: int, sd: float, margin: float, lo: float
            ) -> Cells | str:
     """Fine cells worth integrating, or why none.
@@ -170,12 +180,12 @@ def screen(model, data: np.ndarray, k: int, sd: float, margin: float, lo: float
     that, two directions get cells aligned with the likelihood
     (:func:`aligned_cells`).
     """
-    budget = min(memory_limit() / _BYTES_PER_CELL, _MAX_CELLS)
-    kept, n0 = _coarse(model, data, k, sd, margin, budget)
+    cap = cell_budget()
+    kept, n0 = _coarse(model, data, k, sd, margin, cap)
     s2, w0 = 2 * model.sigma**2, 2 * math.pi / n0
     r, r_min = (max(1, math.ceil(w0 / (f * sd))) for f in (_FINE[k - 1], _WIDEST))
     while True:
-        if float(len(kept)) * r**k <= budget:
+        if float(len(kept)) * r**k <= cap:
             fine, n1 = _refine(kept, r), n0 * r
             ll = _gains(model, data, 2 * math.pi / n1, fine) / s2
             fine = fine[ll >= np.max(ll) - margin - _slack(k, 2 * math.pi / n1, sd)]
@@ -185,8 +195,8 @@ def screen(model, data: np.ndarray, k: int, sd: float, margin: float, lo: float
             break
         r = max(r_min, r // 2)
     why = (f"{len(kept)} coarse cells of {n0}^{k} kept, beyond the budget of "
-           f"{min(budget, _MAX_DRAWN):.3g} fine cells of {_WIDEST:g} sd")
-    found = aligned_cells(model, data, kept, n0, sd, margin, budget, lo) if k == 2 else None
+           f"{min(cap, _MAX_DRAWN):.3g} fine cells of {_WIDEST:g} sd")
+    found = aligned_cells(model, data, kept, n0, sd, margin, cap, lo) if k == 2 else None
     return why + " (square or aligned)" if found is None else found
 
 
@@ -200,12 +210,9 @@ def _bound_log_likelihood(g: np.ndarray, data: np.ndarray, idx: np.ndarray, lo: 
     non-negative intensity.  Tighter than :func:`projection_gain` where two
     nearly coincident directions would need intensities of opposite sign.
     """
-    gd, a = g @ data, np.einsum("ij,ij->i", g, g)
-    i, j = idx[:, 0], idx[:, 1]
-    b = _cross(g, i, j)
-    ai, aj = a[i], a[j]
-    ui, uj = gd[i] - lo * (ai + b), gd[j] - lo * (b + aj)  # g . y'
-    yy = data @ data - 2 * lo * (gd[i] + gd[j]) + lo * lo * (ai + 2 * b + aj)
+    gi, gj, ai, aj, b = _pair_terms(g, data, idx)
+    ui, uj = gi - lo * (ai + b), gj - lo * (b + aj)  # g . y'
+    yy = data @ data - 2 * lo * (gi + gj) + lo * lo * (ai + 2 * b + aj)
     det = ai * aj - b * b
     with np.errstate(divide="ignore", invalid="ignore"):
         xi, xj = (aj * ui - b * uj) / det, (ai * uj - b * ui) / det
@@ -223,17 +230,14 @@ def _local_widths(model, data: np.ndarray, centres: np.ndarray, sd: float) -> np
     """
     used, inv = np.unique(centres, return_inverse=True)
     inv = inv.reshape(centres.shape)
-    g = unit_responses(model, used)
     slope = (unit_responses(model, used + _STEP) - unit_responses(model, used - _STEP)) / (
         2 * _STEP)
-    gd, a, s = g @ data, np.einsum("ij,ij->i", g, g), np.sqrt(np.einsum("ij,ij->i", slope, slope))
-    i, j = inv[:, 0], inv[:, 1]
-    b = _cross(g, i, j)
-    det = a[i] * a[j] - b * b
-    ok = det > 1e-12 * a[i] * a[j]
+    gi, gj, ai, aj, b = _pair_terms(unit_responses(model, used), data, inv)
+    det = ai * aj - b * b
+    ok = det > 1e-12 * ai * aj
     with np.errstate(divide="ignore", invalid="ignore"):
-        best = np.stack([a[j] * gd[i] - b * gd[j], a[i] * gd[j] - b * gd[i]], -1) / det[:, None]
-        width = model.sigma / (np.abs(best) * s[inv])
+        best = np.stack([aj * gi - b * gj, ai * gj - b * gi], -1) / det[:, None]
+        width = model.sigma / (np.abs(best) * np.sqrt(np.einsum("ij,ij->i", slope, slope))[inv])
     return np.where(ok[:, None] & (width > sd), width, sd)
 
 

@@ -73,9 +73,8 @@ def test_one_source_matches_scipy_double_quadrature():
 
 def _aligned_only(model, data, k, sd, margin, lo):
     """The screen with the square fine cells skipped: cells aligned with the likelihood."""
-    budget = min(cells.memory_limit() / cells._BYTES_PER_CELL, cells._MAX_CELLS)
-    kept, n0 = cells._coarse(model, data, k, sd, margin, budget)
-    return cells.aligned_cells(model, data, kept, n0, sd, margin, budget, lo)
+    kept, n0 = cells._coarse(model, data, k, sd, margin, cells.cell_budget())
+    return cells.aligned_cells(model, data, kept, n0, sd, margin, cells.cell_budget(), lo)
 
 
 @pytest.mark.parametrize("aligned", [False, True], ids=["square", "aligned"])

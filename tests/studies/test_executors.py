@@ -90,9 +90,9 @@ def test_the_fork_server_loads_the_kernels_while_idle(tmp_path):
     """In a new process: the first worker starts without the compiled kernels in memory;
     once the fork server has been idle it loads them, and later workers start with
     them.  Importing the server's module anywhere else installs nothing."""
-    from olsbayes._forkserver import _load_kernels
+    from olsbayes.ml.warmup import fast_fits
 
-    _load_kernels()  # into numba's cache (compiled here if need be): the server only loads
+    fast_fits()  # into numba's cache (compiled here if need be): the server only loads
     script = tmp_path / "idle_load.py"
     script.write_text(_IDLE_SCRIPT)
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,

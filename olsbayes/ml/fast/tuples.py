@@ -71,6 +71,11 @@ GRAM_SAMPLING_ATOMS = 2048
 LAZY_SAMPLING_ENTRIES = 4_000_000
 
 
+def _live(norm: np.ndarray) -> np.ndarray:
+    """Indices of the atoms with a response (norm above rounding of the largest)."""
+    return np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
+
+
 def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
     """``dist(i) -> (M_live,)``: distances of the live unit atoms to live atom i, and live.
 
@@ -83,7 +88,7 @@ def _unit_distances(g: np.ndarray, gram: np.ndarray | None):
         norm = np.linalg.norm(g, axis=1)
     else:
         norm = np.sqrt(np.maximum(np.diag(gram), 0.0))
-    live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
+    live = _live(norm)
     if gram is None:
         u = g[live] / norm[live, None]
         if u.size > GRAM_SAMPLING_ENTRIES:
@@ -131,7 +136,7 @@ def _lazy_farthest(g: np.ndarray, inv: np.ndarray, seed: int, dist: np.ndarray,
 def _lazy_subsets(g: np.ndarray, size: int, n_sets: int) -> list[np.ndarray]:
     """:func:`coarse_subsets` by :func:`_lazy_farthest`, the seeds' distances in one pass."""
     norm = np.sqrt(np.einsum("mn,mn->m", g, g))
-    live = np.flatnonzero(norm > 1e-12 * max(norm.max(), 1e-300))
+    live = _live(norm)
     inv = np.zeros_like(norm)
     inv[live] = 1.0 / norm[live]
     seeds = live[np.arange(n_sets) * live.size // n_sets]
