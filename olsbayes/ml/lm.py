@@ -7,7 +7,8 @@ met the stopping rule drop out of the active set, so the cost follows the
 slowest trial only in iterations, not in work.
 
 Bounds: intensities >= 0 (active set: an intensity at 0 whose gradient points
-outwards is frozen for that step), latitudes in [-pi/2, pi/2], plate z > 0.
+outwards is frozen for that step), latitudes in [-pi/2, pi/2] (a step past a
+pole is carried over it), plate z > 0.
 
 :func:`refine_batch` runs the same algorithm compiled, one trial at a time
 (:mod:`olsbayes.ml._numba.lm`), for the models the kernel covers (ring, sphere
@@ -43,7 +44,10 @@ def z_floor(model: Model) -> float:
 
 
 def project(model: Model, x: np.ndarray) -> np.ndarray:
-    """Map parameters onto the feasible set (intensity >= 0, |lat| <= pi/2, z > 0)."""
+    """Map parameters onto the feasible set (intensity >= 0, |lat| <= pi/2, z > 0).
+
+    Latitudes beyond a pole are carried over it (:func:`_over_pole`).
+    """
     return _project_inplace(model, np.array(x, dtype=float))
 
 
@@ -51,10 +55,29 @@ def _project_inplace(model: Model, x: np.ndarray) -> np.ndarray:
     d1 = model.n_loc + 1
     np.maximum(x[..., d1 - 1 :: d1], 0.0, out=x[..., d1 - 1 :: d1])
     if model.kind == "lonlat":
-        x[..., 1::d1] = np.clip(x[..., 1::d1], -np.pi / 2, np.pi / 2)
+        _over_pole(x[..., 0::d1], x[..., 1::d1])
     elif model.kind == "position":
         x[..., 2::d1] = np.maximum(x[..., 2::d1], z_floor(model))
     return x
+
+
+def _over_pole(lon: np.ndarray, lat: np.ndarray) -> None:
+    """Carry directions with |lat| > pi/2 over the pole, in place (the same direction).
+
+    The sphere has no edge at a pole: a step past one lands at latitude
+    ``+-pi - lat`` on the opposite meridian (lon +- pi).  Clipping the latitude
+    instead would leave a source at the pole, where the longitude has no effect,
+    and the fit creeping along that artificial bound.
+    """
+    over = np.abs(lat) > np.pi / 2
+    if not over.any():
+        return
+    t = np.mod(lat[over] + np.pi, 2 * np.pi) - np.pi
+    flip = np.abs(t) > np.pi / 2
+    t[flip] = np.copysign(np.pi, t[flip]) - t[flip]
+    lo = lon[over]
+    lo[flip] = np.where(lo[flip] <= 0.0, lo[flip] + np.pi, lo[flip] - np.pi)
+    lat[over], lon[over] = t, lo
 
 
 def _chi2(model: Model, x: np.ndarray, data: np.ndarray) -> np.ndarray:

@@ -365,3 +365,42 @@ def test_fast_fit_of_a_custom_law_equals_the_builtin_law():
     b = ob.fit_ml(builtin, data, 3, warn=False)
     np.testing.assert_allclose(a.log_likelihood, b.log_likelihood, rtol=0,
                                atol=10 * FTOL * custom.n_sensors)
+
+
+def test_projection_carries_latitude_over_the_pole():
+    """Both paths map |lat| > pi/2 to the same direction with |lat| <= pi/2."""
+    from olsbayes.geometry import lonlat_to_unit
+    from olsbayes.ml.lm import project
+
+    model = ob.Model(ob.Sphere.fibonacci(40), 1e-2)
+    rng = np.random.default_rng(12)
+    x = np.column_stack([rng.uniform(-np.pi, np.pi, 500), rng.uniform(-7.0, 7.0, 500),
+                         rng.uniform(0.1, 1.0, 500)]).reshape(100, 15)
+    a = project(model, x)
+    b = x.copy()
+    for row in b:
+        _kernel._project(1, 0.0, row)
+    np.testing.assert_array_equal(a, b)
+    assert np.all(np.abs(a[:, 1::3]) <= np.pi / 2)
+    assert np.all(np.abs(a[:, 0::3]) <= np.pi)  # longitudes in (-pi, pi] stay there
+    np.testing.assert_allclose(lonlat_to_unit(a[:, 0::3], a[:, 1::3]),
+                               lonlat_to_unit(x[:, 0::3], x[:, 1::3]), atol=1e-13)
+    inside = np.abs(x[:, 1::3]) <= np.pi / 2
+    np.testing.assert_array_equal(a[:, 1::3][inside], x[:, 1::3][inside])
+
+
+def test_sphere_fit_crosses_the_pole():
+    """Starts on the far side of the pole reach the optimum (a clipped latitude stuck there)."""
+    model = ob.Model(ob.Sphere.fibonacci(120), 1e-2)
+    scene = ob.Scene(directions=[[0.3, 1.35], [2.5, -0.5]], intensities=[1.0, 0.6])
+    truth = model.pack(scene)
+    data = model.simulate(scene, rng=13, size=20)
+    x0 = _starts(model, truth, 14, 20, 0.03)
+    x0[:, 0] += np.pi  # 0.43-0.55 rad from the truth, across the north pole
+    x0[:, 1] += 1.3 - truth[1]
+    best = refine_batch(model, data, np.tile(truth, (20, 1)))
+    for run in (refine_batch, refine_batch_numpy):
+        out = run(model, data, x0)
+        assert out.converged.all()
+        np.testing.assert_allclose(out.chi2, best.chi2, rtol=10 * FTOL)
+        assert out.n_evaluations.max() <= 40

@@ -61,15 +61,28 @@ def supports(model: Model) -> bool:
 
 
 @numba.njit(cache=True, inline="always")
+def _over_pole(x, b):  # pragma: no cover - compiled
+    """(lon, lat) at x[b], x[b + 1] with |lat| > pi/2 carried over the pole (same direction)."""
+    lat = x[b + 1]
+    if abs(lat) <= 0.5 * math.pi:
+        return
+    lat = (lat + math.pi) % (2.0 * math.pi) - math.pi
+    if abs(lat) > 0.5 * math.pi:
+        lat = math.copysign(math.pi, lat) - lat
+        x[b] = x[b] + math.pi if x[b] <= 0.0 else x[b] - math.pi
+    x[b + 1] = lat
+
+
+@numba.njit(cache=True, inline="always")
 def _project(kind, zfl, x):  # pragma: no cover - compiled
-    """Feasible set in place: intensity >= 0, |lat| <= pi/2, z >= zfl."""
+    """Feasible set in place: intensity >= 0, |lat| <= pi/2 (over the pole), z >= zfl."""
     d1 = kind + 2
     for k in range(x.size // d1):
         b = k * d1
         if x[b + d1 - 1] < 0.0:
             x[b + d1 - 1] = 0.0
         if kind == 1:
-            x[b + 1] = min(max(x[b + 1], -0.5 * math.pi), 0.5 * math.pi)
+            _over_pole(x, b)
         elif kind == 2 and x[b + 2] < zfl:
             x[b + 2] = zfl
 
