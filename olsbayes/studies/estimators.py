@@ -29,13 +29,12 @@ import numpy as np
 
 from ..errors import OlsBayesWarning
 from ..exchange import match_sources
-from ..geometry import Ring
 from ..model import Model
 from ._work import trial_outputs, trial_settings, vectorized
 from .estimator_spec import Estimator, as_estimator
 from .grid import Setting
 from .scoring import ring_truth, score
-from .trials import RING_SETTINGS
+from .trials import RING_SETTINGS, ring_model
 
 __all__ = ["ring_estimate", "OUTPUT_NAMES", "OUTPUTS"]
 
@@ -226,7 +225,7 @@ def ring_estimate(settings: dict, *, rngs: list[np.random.Generator]) -> dict:
         log-likelihood of the estimate minus that of the truth.
     """
     est = as_estimator(settings.get("estimator", "fast"), "settings['estimator']")
-    model = Model(Ring(int(settings["n_sensors"])), float(settings["sigma"]))
+    model = ring_model(settings)
     k = int(settings.get("n_sources", 1))
     truth = np.stack([ring_truth(model, settings, rng=r) for r in rngs])
     data = np.stack([model.simulate(x, rng=r) for x, r in zip(truth, rngs)])

@@ -19,18 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import OlsBayesWarning
-from ..geometry import Ring
 from ..model import Model
 from ._work import trial_outputs, trial_settings
+from .trials import ring_model
 
 __all__ = ["sbc_posterior", "sbc_k", "ranks_of", "RankTest", "rank_test", "N_DRAWS"]
 
 #: Posterior draws per replicate used for ranks (ranks lie in 0..N_DRAWS).
 N_DRAWS = 99
-
-
-def _model(settings: dict) -> Model:
-    return Model(Ring(int(settings["n_sensors"])), float(settings["sigma"]))
 
 
 def _prior(model: Model, settings: dict, k: int):
@@ -74,7 +70,7 @@ def sbc_posterior(settings: dict, *, rng: np.random.Generator) -> dict:
     """
     from ..posterior import SamplerOptions, sample
 
-    model = _model(settings)
+    model = ring_model(settings)
     k = int(settings.get("n_sources", 1))
     prior = _prior(model, settings, k)
     truth = prior.sample(rng=rng)
@@ -106,7 +102,7 @@ def sbc_k(settings: dict, *, rng: np.random.Generator) -> dict:
     """
     from ..select import select_k
 
-    model = _model(settings)
+    model = ring_model(settings)
     k_max = int(settings.get("k_max", 2))
     k_true = int(rng.integers(0, k_max + 1))
     truth = _prior(model, settings, k_true).sample(rng=rng) if k_true else np.zeros(0)

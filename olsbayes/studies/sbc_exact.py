@@ -26,7 +26,8 @@ from .._validation import as_rng
 from ..errors import InputError
 from ..select.quadrature import projection_gain, unit_responses
 from ._work import trial_outputs, trial_settings
-from .sbc import _model, _prior
+from .sbc import _prior
+from .trials import ring_model
 
 __all__ = ["exact_ring_posterior", "weighted_cdf", "sbc_exact"]
 
@@ -132,7 +133,7 @@ def sbc_exact(settings: dict, *, rng: np.random.Generator) -> dict:
     Returns ``cdf`` (P,): posterior probability below the canonical truth, uniform on
     (0, 1) for an exact posterior; ``ess``: effective number of importance draws.
     """
-    model = _model(settings)
+    model = ring_model(settings)
     k = int(settings.get("n_sources", 1))
     prior = _prior(model, settings, k)
     truth = prior.sample(rng=rng)
