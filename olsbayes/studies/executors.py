@@ -5,12 +5,14 @@ Every backend offers the same three operations -- ``submit(fn, *args)``,
 of chunks in flight and checkpoints each one as soon as it finishes.  Dask
 (``distributed``) is an optional extra, imported only when it is used.
 
-The local process pool starts fast: its workers fork from a server process that
+The local process pool (:mod:`._pool`) starts fast: its workers fork from a server process that
 has imported the package once (:mod:`olsbayes._forkserver`), and until the first worker
 has delivered a chunk the study's own process runs queued chunks itself, so a
-small study never waits for the pool.  A fresh local Dask cluster forks its
-workers from the same server (which then also imports ``distributed``, if it is
-the first to start it) instead of spawning processes that import everything anew.
+small study never waits for the pool; a study starts its pool only after
+:data:`POOL_START_DELAY` seconds of that, so one done sooner never starts it.
+A fresh local Dask cluster forks its workers from the same server (which then
+also imports ``distributed``, if it is the first to start it) instead of
+spawning processes that import everything anew.
 A chunk gives the same numbers wherever it runs (its trials' seeds are fixed).
 """
 
@@ -18,22 +20,25 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import importlib.util
-import multiprocessing
 import os
-import select
-import threading
-import time
 from collections.abc import Callable
 from multiprocessing import forkserver
 from typing import Any
 
 from .._validation import _short, integer
 from ..errors import InputError
+from ._pool import LocalPool, forkserver_context
 
-__all__ = ["Backend", "make_backend", "EXECUTORS"]
+__all__ = ["Backend", "make_backend", "EXECUTORS", "POOL_START_DELAY"]
 
 #: Executor names accepted by :func:`make_backend`.
 EXECUTORS = ("serial", "threads", "processes", "dask")
+
+#: Seconds a study runs chunks in its own process before its local pool starts
+#: (``run_study``): a study done sooner -- a few dozen trials of a few ms --
+#: never pays for starting workers (tens of ms), a longer one forgoes their help
+#: for at most this long.
+POOL_START_DELAY = 0.05
 
 
 class _Deferred:
@@ -47,143 +52,6 @@ class _Deferred:
 
     def cancel(self) -> bool:
         return True
-
-
-class _PoolFuture:
-    """A call for the local pool that the study's own process may run instead.
-
-    ``inner`` is the pool's future once the call has been handed to the pool
-    (None before: the pool is still starting).  :meth:`run_here` runs the call in
-    this process, cancelling the pool's copy; calls are deterministic, so where a
-    call ran never changes its result.
-    """
-
-    def __init__(self, fn: Callable, args: tuple):
-        self.inner: cf.Future | None = None
-        self._call = (fn, args)
-        self._outcome: tuple[bool, Any] | None = None
-
-    @property
-    def settled(self) -> bool:
-        """Whether the call ran here (or was cancelled before it reached the pool)."""
-        return self._outcome is not None
-
-    def hand_to(self, pool: cf.Executor) -> None:
-        """Give the call to the pool unless it ran here already."""
-        if self.inner is None and self._outcome is None:
-            fn, args = self._call
-            self.inner = pool.submit(fn, *args)
-
-    def run_here(self) -> None:
-        """Run the call in this process (its exception, if any, is kept for result())."""
-        fn, args = self._call
-        try:
-            self._outcome = (True, fn(*args))
-        except Exception as exc:  # noqa: BLE001 - re-raised by result(), as the pool would
-            self._outcome = (False, exc)
-
-    def result(self) -> Any:
-        """The call's value, or its exception raised here (run here if still unsent)."""
-        if self._outcome is None and self.inner is None:
-            self.run_here()
-        if self._outcome is not None:
-            ok, value = self._outcome
-            if ok:
-                return value
-            raise value
-        try:
-            return self.inner.result()
-        except cf.process.BrokenProcessPool as exc:
-            raise InputError(
-                "the study's worker processes ended abruptly (killed, out of memory, or "
-                "failing on start-up). Workers import the script that called run_study: a "
-                "script must call it under `if __name__ == \"__main__\":`; or use "
-                f"executor='serial' or 'threads' ({exc})") from None
-
-    def cancel(self) -> bool:
-        """Cancel the call if it has not started (here or in the pool)."""
-        if self._outcome is not None:
-            return False
-        if self.inner is None:
-            self._outcome = (False, cf.CancelledError())
-            return True
-        return self.inner.cancel()
-
-
-def _forkserver(*extra: str) -> multiprocessing.context.BaseContext:
-    """The ``forkserver`` context, its server told to import the package first.
-
-    One server serves the process: the modules count only when this call comes
-    before the server's start (the first pool or local Dask cluster of the
-    process); ``extra`` names further modules to import there.  ``__main__`` is
-    imported only when it is a file, as for any ``forkserver`` worker.
-    """
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["__main__", "olsbayes._forkserver", *extra])
-    return ctx
-
-
-class _LocalPool:
-    """A ``ProcessPoolExecutor`` started in the background while the caller works.
-
-    Starting the pool (the fork server importing the package, then the first
-    worker) takes seconds; a helper thread does it while :meth:`wait_first` runs
-    queued calls in the calling process.  Once the pool runs, calls go to it, and
-    until its first result the caller keeps running calls: one it can take back
-    from the pool, else the oldest pending one (whose pool copy then runs twice).
-    """
-
-    def __init__(self, n_workers: int):
-        ctx = _forkserver()
-        self.pool = cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
-                                           initializer=_end_with, initargs=(os.getpid(),))
-        self.ready = threading.Event()
-        self.delivered = False
-        threading.Thread(target=self._start, name="olsbayes-study-pool-start",
-                         daemon=True).start()
-
-    def _start(self) -> None:
-        try:
-            self.pool.submit(os.getpid).result()
-        except BaseException:  # noqa: BLE001 - a broken pool reports through the calls
-            pass
-        finally:
-            self.ready.set()
-
-    def submit(self, fn: Callable, *args: Any) -> _PoolFuture:
-        """A call for the pool (handed over now if the pool runs)."""
-        fut = _PoolFuture(fn, args)
-        if self.ready.is_set():
-            fut.hand_to(self.pool)
-        return fut
-
-    def wait_first(self, pending: list[_PoolFuture]) -> tuple[list, list]:
-        """At least one of ``pending`` done, run here while the pool is not delivering."""
-        pick = None
-        if not self.ready.is_set():
-            pick = next((f for f in pending if f.inner is None and not f.settled), None)
-        if pick is None:
-            self.ready.wait()
-            for f in pending:
-                f.hand_to(self.pool)
-            pick = next((f for f in pending if f.settled), None)
-        if pick is None and not self.delivered:
-            done, _ = cf.wait([f.inner for f in pending], timeout=0,
-                              return_when=cf.FIRST_COMPLETED)
-            if not done:  # the latest call the pool has not started, else the oldest
-                pick = next((f for f in reversed(pending) if f.inner.cancel()), pending[0])
-        if pick is not None:
-            if not pick.settled:
-                pick.run_here()
-            return [pick], [f for f in pending if f is not pick]
-        done, _ = cf.wait([f.inner for f in pending], return_when=cf.FIRST_COMPLETED)
-        self.delivered = True
-        return ([f for f in pending if f.inner in done],
-                [f for f in pending if f.inner not in done])
-
-    def close(self) -> None:
-        """Stop the pool without waiting for calls whose results are no longer needed."""
-        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 class Backend:
@@ -206,7 +74,7 @@ class Backend:
         self.name, self.n_workers = name, max(1, int(n_workers))
         self.chunks_per_worker = int(chunks_per_worker)
         self._submit, self._kind, self._closer = submit, kind, closer
-        self._local: _LocalPool | None = None
+        self._local: LocalPool | None = None
 
     def submit(self, fn: Callable, *args: Any) -> Any:
         """Schedule ``fn(*args)``; return a future-like object with ``result()``."""
@@ -235,36 +103,6 @@ class Backend:
         if self._closer is not None:
             self._closer()
             self._closer = None
-
-
-def _wait_for_exit(pid: int) -> None:
-    """Block until process ``pid`` has ended (pidfd on Linux, else polling each second)."""
-    try:
-        fd = os.pidfd_open(pid)
-    except (AttributeError, OSError):  # no pidfd here, or the process is already gone
-        fd = None
-    if fd is not None:
-        select.select([fd], [], [])  # the pidfd turns readable when the process exits
-        return
-    while True:
-        try:
-            os.kill(pid, 0)
-        except (ProcessLookupError, PermissionError):  # gone (or its pid reused by another user)
-            return
-        time.sleep(1.0)
-
-
-def _end_with(parent: int) -> None:
-    """Pool-worker initializer: exit as soon as the study's process ``parent`` dies.
-
-    Without it, a study killed with ``kill -9`` leaves its pool workers behind:
-    they finish their chunk for nobody, then wait forever on the task queue.
-    """
-    def watch() -> None:
-        _wait_for_exit(parent)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="olsbayes-study-parent-watch", daemon=True).start()
 
 
 def _local_workers(workers: int | None) -> int:
@@ -324,7 +162,7 @@ def _local_dask(n_workers: int) -> Backend:
     affected (a user's client or scheduler keeps its own settings); its
     dashboard then shows no task profiles.
     """
-    _forkserver("distributed")
+    forkserver_context("distributed")
     forkserver.ensure_running()
     import dask
     from distributed import Client, LocalCluster
@@ -346,7 +184,7 @@ def _local_dask(n_workers: int) -> Backend:
 
 
 def make_backend(executor: object = "processes", *, workers: int | None = None,
-                 scheduler: str | None = None) -> Backend:
+                 scheduler: str | None = None, start_delay: float = 0.0) -> Backend:
     """Build the backend for ``executor``.
 
     Parameters
@@ -366,6 +204,9 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
         default the number of usable cores.
     scheduler : str, optional
         Dask scheduler address (only with ``executor="dask"``).
+    start_delay : float
+        Seconds before ``"processes"`` starts its pool; until then, and until the
+        pool delivers, ``wait_first`` runs the calls in this process.
     """
     if scheduler is not None and executor != "dask":
         raise InputError(f"scheduler is only used with executor='dask'; got executor={executor!r}")
@@ -378,7 +219,7 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
             return Backend("threads", n, pool.submit, "cf", pool.shutdown)
         if executor == "processes":
             n = _local_workers(workers)
-            local = _LocalPool(n)
+            local = LocalPool(n, start_delay)
             backend = Backend("processes", n, local.submit, "pool", local.close)
             backend._local = local
             return backend

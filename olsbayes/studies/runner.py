@@ -22,6 +22,7 @@ from .._io import atomic_path, ensure_dir
 from .._validation import _short, integer
 from .._version import __version__
 from ..errors import InputError
+from . import executors
 from ._work import (
     check_signature,
     declared_outputs,
@@ -30,7 +31,6 @@ from ._work import (
     run_chunk,
 )
 from .checkpoint import Checkpoint, ChunkRecord, fingerprint_key, recorded_seed
-from .executors import make_backend
 from .grid import Grid, check_fixed, check_known, make_grid, settings_json
 from .results import Results, check_budget, memory_limit
 from .seeds import study_entropy
@@ -333,7 +333,8 @@ def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tu
     total = study.grid.n_cells * study.n_trials
     n_todo = results.n_todo
     executor, workers, scheduler = where
-    backend = make_backend(executor, workers=workers, scheduler=scheduler)
+    backend = executors.make_backend(executor, workers=workers, scheduler=scheduler,
+                                     start_delay=executors.POOL_START_DELAY)
     try:
         _check_picklable(study.trial, backend.name)
         size = chunk_size or max(1, min(1000, study.n_trials,

@@ -8,10 +8,11 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
-from olsbayes.studies import run_study
+from olsbayes.studies import executors, run_study
 from olsbayes.studies.trials import noise_check
 
 GRID = {"sigma": [0.01, 0.1], "n_sensors": [8, 16]}
@@ -22,25 +23,60 @@ def _fail(msg):
 
 
 def test_pool_calls_run_here_while_unsent_and_keep_their_errors():
-    from olsbayes.studies.executors import _PoolFuture
+    from olsbayes.studies._pool import PoolFuture
 
-    here = _PoolFuture(os.getpid, ())
+    here = PoolFuture(os.getpid, ())
     assert here.result() == os.getpid() and here.settled  # not yet sent: runs here
-    bad = _PoolFuture(_fail, ("boom",))
+    bad = PoolFuture(_fail, ("boom",))
     bad.run_here()
     with pytest.raises(ValueError, match="boom"):
         bad.result()
-    dropped = _PoolFuture(os.getpid, ())
+    dropped = PoolFuture(os.getpid, ())
     assert dropped.cancel() and not dropped.cancel()
     with pytest.raises(cf.CancelledError):
         dropped.result()
 
 
-def test_process_pool_study_on_many_small_chunks_equals_serial():
+def _pools(monkeypatch, delay: float) -> list:
+    """Set the study's pool start delay; per process pool made from now on, the calls
+    handed to it (the first: the start's ``os.getpid``)."""
+    made = []
+
+    class Recording(cf.ProcessPoolExecutor):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.calls = []
+            made.append(self.calls)
+
+        def submit(self, fn, /, *args, **kwargs):
+            self.calls.append(fn)
+            return super().submit(fn, *args, **kwargs)
+
+    monkeypatch.setattr(executors, "POOL_START_DELAY", delay)
+    monkeypatch.setattr(cf, "ProcessPoolExecutor", Recording)
+    return made
+
+
+def test_process_pool_study_on_many_small_chunks_equals_serial(monkeypatch):
+    made = _pools(monkeypatch, 0.0)
     ref = run_study(noise_check, GRID, 6, executor="serial", rng=3, progress=False)
     procs = run_study(noise_check, GRID, 6, executor="processes", workers=2, rng=3,
                       chunk_size=1, progress=False)
     assert procs.identical(ref)
+    deadline = time.monotonic() + 10
+    while not made[0] and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(made) == 1 and made[0][0] is os.getpid  # the pool was started
+
+
+def test_a_study_done_within_the_start_delay_never_starts_its_pool(monkeypatch):
+    made = _pools(monkeypatch, 60.0)
+    ref = run_study(noise_check, GRID, 6, executor="serial", rng=3, progress=False)
+    procs = run_study(noise_check, GRID, 6, executor="processes", workers=2, rng=3,
+                      chunk_size=1, progress=False)
+    assert procs.identical(ref)
+    time.sleep(0.1)
+    assert made == [[]]  # a pool object, never started (closed within the delay)
 
 
 def test_local_dask_workers_fork_from_the_package_fork_server():
@@ -66,14 +102,14 @@ def test_local_dask_workers_fork_from_the_package_fork_server():
 
 _IDLE_SCRIPT = textwrap.dedent("""
     import concurrent.futures as cf, time
-    from olsbayes.studies.executors import _forkserver
+    from olsbayes.studies._pool import forkserver_context
 
     def loaded(_=0):
         import olsbayes.ml._numba.lm as lm
         return bool(lm._lm_all.signatures)  # machine code in memory, no call made here
 
     if __name__ == "__main__":
-        ctx = _forkserver()
+        ctx = forkserver_context()
         with cf.ProcessPoolExecutor(1, mp_context=ctx) as pool:
             first = pool.submit(loaded).result()
         for _ in range(120):  # seconds; ~2 when the kernels are in numba's cache

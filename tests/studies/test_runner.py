@@ -69,9 +69,12 @@ def reenters(settings, rng):
 
 
 @pytest.mark.slow
-def test_same_numbers_on_every_executor_worker_count_and_chunking():
+def test_same_numbers_on_every_executor_worker_count_and_chunking(monkeypatch):
     from distributed import Client, LocalCluster
 
+    from olsbayes.studies import executors
+
+    monkeypatch.setattr(executors, "POOL_START_DELAY", 0.0)  # the pool runs chunks too
     ref = _serial()
     procs = run_study(noise_check, GRID, 24, executor="processes", workers=2, rng=7,
                       chunk_size=5, progress=False)
