@@ -76,6 +76,11 @@ class Backend:
         self._submit, self._kind, self._closer = submit, kind, closer
         self._local: LocalPool | None = None
 
+    @property
+    def alone(self) -> bool:
+        """Whether this process runs every call for now (its local pool has not started)."""
+        return self._local is not None and not self._local.ready.is_set()
+
     def submit(self, fn: Callable, *args: Any) -> Any:
         """Schedule ``fn(*args)``; return a future-like object with ``result()``."""
         return self._submit(fn, *args)

@@ -11,7 +11,7 @@ import sys
 import tempfile
 import types
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -349,13 +349,15 @@ def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tu
             nxt = next(queue, None)
             while nxt is not None or pending:
                 while nxt is not None and len(pending) < window:
-                    cell, idx = nxt
+                    # while this process works alone, a chunk for each worker at once:
+                    # the chunk size of a serial study (results do not depend on it)
+                    (cell, idx), nxt = _take(queue, nxt, backend.n_workers
+                                             if backend.alone and not chunk_size else 1)
                     fut = backend.submit(run_chunk, study.trial,
                                          {**study.fixed, **study.grid.cell(cell)},
                                          study.entropy, cell, idx)
                     chunks[id(fut)] = (cell, idx)
                     pending.append(fut)
-                    nxt = next(queue, None)
                 if backend.name != "serial":  # while the workers run the first chunks
                     import xarray  # noqa: F401  (for _dataset; ~0.5-1 s the first time)
                 done, pending = backend.wait_first(pending)
@@ -364,6 +366,17 @@ def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tu
                                         pending))
     finally:
         backend.close()
+
+
+def _take(queue: Iterator, nxt: tuple, n: int) -> tuple[tuple[int, np.ndarray], Any]:
+    """Up to ``n`` queued chunks of one cell, joined, starting with ``nxt``; and the next."""
+    cell, idx = nxt
+    parts = [idx]
+    nxt = next(queue, None)
+    while len(parts) < n and nxt is not None and nxt[0] == cell:
+        parts.append(nxt[1])
+        nxt = next(queue, None)
+    return (cell, parts[0] if len(parts) == 1 else np.concatenate(parts)), nxt
 
 
 def _collect(fut: Any, chunk: tuple[int, np.ndarray], g: Grid, ckpt: Checkpoint | None,

@@ -166,3 +166,17 @@ def test_local_dask_cluster_runs_with_quiet_housekeeping_timers_only_there():
     finally:
         backend.close()
     assert dask.config.get("distributed.worker.profile.enabled") == before
+
+
+def test_a_study_alone_in_its_process_takes_the_chunks_of_every_worker(monkeypatch, tmp_path):
+    from olsbayes.studies.checkpoint import read_chunks
+
+    _pools(monkeypatch, 60.0)
+    grid = {"sigma": [0.01], "n_sensors": [8]}
+    ref = run_study(noise_check, grid, 16, executor="serial", rng=4, progress=False)
+    ckpt = tmp_path / "s.ckpt"
+    procs = run_study(noise_check, grid, 16, executor="processes", workers=2, rng=4,
+                      checkpoint=ckpt, progress=False)
+    assert procs.identical(ref)
+    # 16 trials for 2 workers are 16 chunks of 1; alone, the process runs them in pairs
+    assert [len(rec.trials) for rec in read_chunks(ckpt)] == [2] * 8
