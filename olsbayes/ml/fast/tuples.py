@@ -31,6 +31,7 @@ import heapq
 import itertools
 import weakref
 from collections import OrderedDict
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from math import comb
 
@@ -133,47 +134,95 @@ def _lazy_farthest(g: np.ndarray, inv: np.ndarray, seed: int, dist: np.ndarray,
     return chosen
 
 
-def _lazy_subsets(g: np.ndarray, size: int, n_sets: int) -> list[np.ndarray]:
-    """:func:`coarse_subsets` by :func:`_lazy_farthest`, the seeds' distances in one pass."""
+def _lazy_sampler(g: np.ndarray, size: int, n_sets: int) -> tuple[Callable, int]:
+    """(sample, L): :func:`_lazy_farthest` from the live atom of a rank, and L live atoms.
+
+    The distances from the ``n_sets`` first seeds (``j L / n_sets``) come in one pass.
+    """
     norm = np.sqrt(np.einsum("mn,mn->m", g, g))
     live = _live(norm)
     inv = np.zeros_like(norm)
     inv[live] = 1.0 / norm[live]
-    seeds = live[np.arange(n_sets) * live.size // n_sets]
-    dist = np.sqrt(np.maximum(2.0 - 2.0 * (g[seeds] @ g.T) * inv[seeds, None] * inv, 0.0))
-    dist[:, inv == 0.0] = -1.0
-    dist[np.arange(n_sets), seeds] = 0.0
+    first = live[np.arange(n_sets) * live.size // n_sets]
+    rows = dict(zip(first.tolist(),
+                    np.sqrt(np.maximum(2.0 - 2.0 * (g[first] @ g.T) * inv[first, None] * inv,
+                                       0.0))))
     size = min(size, live.size)
-    return [np.sort(_lazy_farthest(g, inv, seed, row, size)) for seed, row in zip(seeds, dist)]
+
+    def sample(rank: int) -> np.ndarray:
+        seed = int(live[rank])
+        row = rows.pop(seed, None)
+        if row is None:
+            row = np.sqrt(np.maximum(2.0 - 2.0 * (g @ g[seed]) * inv[seed] * inv, 0.0))
+        row[inv == 0.0] = -1.0
+        row[seed] = 0.0
+        return np.sort(_lazy_farthest(g, inv, seed, row, size))
+
+    return sample, live.size
+
+
+def _plain_sampler(g: np.ndarray, size: int, gram: np.ndarray | None) -> tuple[Callable, int]:
+    """(sample, L): farthest-point sampling from the live atom of a rank, L live atoms."""
+    distance, live = _unit_distances(g, gram)
+    size = min(size, live.size)
+
+    def sample(rank: int) -> np.ndarray:
+        chosen = [rank]
+        dist = distance(rank)
+        for _ in range(size - 1):
+            nxt = int(np.argmax(dist))
+            chosen.append(nxt)
+            dist = np.minimum(dist, distance(nxt))
+        return live[np.sort(chosen)]
+
+    return sample, live.size
+
+
+#: Seeds tried in all for a subset whose sampling repeats an earlier subset.
+RESEEDS = 16
+_GOLDEN = (5**0.5 - 1) / 2
+
+
+def _seed_ranks(j: int, n_live: int, n_sets: int) -> Iterator[int]:
+    """Ranks (among the live atoms) at which subset j may be seeded, in order.
+
+    First ``j L / n_sets``; then points of its slot ``[j L / n_sets, (j + 1) L /
+    n_sets)`` at the golden-ratio fractions ``frac(r phi)``, r = 1, 2, ...
+    """
+    base, width = j * n_live // n_sets, n_live / n_sets
+    yield base
+    for r in range(1, RESEEDS):
+        yield (base + int((r * _GOLDEN) % 1.0 * width)) % n_live
 
 
 def coarse_subsets(g: np.ndarray, size: int, n_sets: int = 1,
                    gram: np.ndarray | None = None) -> list[np.ndarray]:
-    """``n_sets`` subsets of ``size`` atoms, each spread evenly over the response manifold.
+    """Up to ``n_sets`` distinct subsets of ``size`` atoms, spread over the response manifold.
 
     Farthest-point sampling on the unit-normalised atoms (rows of g, shape
     (M, N)), subset j seeded at the live atom of rank ``j * M_live / n_sets``.
     The subsets differ in placement but are not regular shifted grids: on a
     30-ring's 128-atom grid with 20 atoms per subset their gaps range from about
-    11 to 25 deg, and 3 of 24 seeds give a subset another seed gave
-    (:func:`tuple_plans` plans each once); regular shifted grids reached the
-    global optimum less often.  Atoms with zero response (sources no sub-sensor sees) are
-    skipped.  With ``gram`` (M, M), the atoms' Gram matrix, the distances come from it
-    (equal up to rounding).
+    11 to 25 deg; regular shifted grids reached the global optimum less often.
+    A seed can give a subset an earlier seed gave: on rings of 1000 or more
+    sub-sensors, whose 1024 atoms are nearly uniform, 24 evenly spaced seeds give
+    only 3 distinct subsets (21 on a 300-ring).  Such a subset is drawn again from
+    further seeds of its slot (:func:`_seed_ranks`, at most :data:`RESEEDS` in
+    all) and left out if every one repeats.  Atoms with zero response (sources
+    no sub-sensor sees) are skipped.  With ``gram`` (M, M), the atoms' Gram
+    matrix, the distances come from it (equal up to rounding).
     """
     if gram is None and g.size > LAZY_SAMPLING_ENTRIES:  # no (M, N) temporary
-        return _lazy_subsets(g, size, n_sets)
-    distance, live = _unit_distances(g, gram)
-    size = min(size, live.size)
-    out = []
+        sample, n_live = _lazy_sampler(g, size, n_sets)
+    else:
+        sample, n_live = _plain_sampler(g, size, gram)
+    out: list[np.ndarray] = []
     for j in range(n_sets):
-        chosen = [j * live.size // n_sets]
-        dist = distance(chosen[0])
-        for _ in range(size - 1):
-            nxt = int(np.argmax(dist))
-            chosen.append(nxt)
-            dist = np.minimum(dist, distance(nxt))
-        out.append(live[np.sort(chosen)])
+        for rank in _seed_ranks(j, n_live, n_sets):
+            sub = sample(rank)
+            if not any(np.array_equal(sub, u) for u in out):
+                out.append(sub)
+                break
     return out
 
 
@@ -249,9 +298,8 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type,
     ``dtype``: the float type the tuples are scored in (float64 anyway where the
     tuple numbers exceed float32's integers).
 
-    Farthest-point subsets seeded at different atoms can coincide (24 subsets of
-    a 128-atom ring grid at K = 4: 21 distinct); a repeated subset would only
-    repeat its best tuple and that tuple's LM run, so each is planned once.
+    The subsets are distinct (:func:`coarse_subsets`): a repeated subset would
+    only repeat its best tuple and that tuple's LM run.
 
     The plans depend only on the atoms, K, ``n_sets`` and ``budget``, so repeated
     single fits with one model reuse them (an LRU cache of 16 entries keyed by a
@@ -268,15 +316,11 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type,
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
-    subsets: list[np.ndarray] = []
     if g.size > GRAM_SAMPLING_ENTRIES and g.shape[0] <= GRAM_SAMPLING_ATOMS:
         gram = g @ g.T if gram is None or gram.shape[0] != g.shape[0] else gram
     else:
         gram = None
-    for sub in coarse_subsets(g, size, n_sets, gram):  # identical subsets: identical tuples
-        if not any(np.array_equal(sub, u) for u in subsets):
-            subsets.append(sub)
-    plans = [_plan(g, sub, k, dtype) for sub in subsets]
+    plans = [_plan(g, sub, k, dtype) for sub in coarse_subsets(g, size, n_sets, gram)]
     plans = [p for p in plans if p.combos.shape[0]]  # no K-tuple of full rank
     _CACHE[key] = plans
     while len(_CACHE) > _CACHE_SIZE:
