@@ -105,6 +105,8 @@ class LocalPool:
     queued calls in the calling process.  Once the pool runs, calls go to it, and
     until its first result the caller keeps running calls: one it can take back
     from the pool, else the oldest pending one (whose pool copy then runs twice).
+    The start waits ``delay`` seconds first, and does not happen if the pool is
+    closed by then: until it starts, the caller runs every call.
     """
 
     def __init__(self, n_workers: int, delay: float = 0.0):
