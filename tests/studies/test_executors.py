@@ -57,12 +57,19 @@ def _pools(monkeypatch, delay: float) -> list:
     return made
 
 
-def test_process_pool_study_on_many_small_chunks_equals_serial(monkeypatch):
-    made = _pools(monkeypatch, 0.0)
+def _small_study(monkeypatch, delay: float) -> list:
+    """A 24-trial study on the local pool with start delay ``delay``, checked against
+    serial; the calls handed to its process pool (:func:`_pools`)."""
+    made = _pools(monkeypatch, delay)
     ref = run_study(noise_check, GRID, 6, executor="serial", rng=3, progress=False)
     procs = run_study(noise_check, GRID, 6, executor="processes", workers=2, rng=3,
                       chunk_size=1, progress=False)
     assert procs.identical(ref)
+    return made
+
+
+def test_process_pool_study_on_many_small_chunks_equals_serial(monkeypatch):
+    made = _small_study(monkeypatch, 0.0)
     deadline = time.monotonic() + 10
     while not made[0] and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -70,11 +77,7 @@ def test_process_pool_study_on_many_small_chunks_equals_serial(monkeypatch):
 
 
 def test_a_study_done_within_the_start_delay_never_starts_its_pool(monkeypatch):
-    made = _pools(monkeypatch, 60.0)
-    ref = run_study(noise_check, GRID, 6, executor="serial", rng=3, progress=False)
-    procs = run_study(noise_check, GRID, 6, executor="processes", workers=2, rng=3,
-                      chunk_size=1, progress=False)
-    assert procs.identical(ref)
+    made = _small_study(monkeypatch, 60.0)
     time.sleep(0.1)
     assert made == [[]]  # a pool object, never started (closed within the delay)
 
