@@ -115,6 +115,20 @@ def _pair_terms(g: np.ndarray, data: np.ndarray, idx: np.ndarray) -> tuple[np.nd
     return gd[i], gd[j], a[i], a[j], b
 
 
+def _pair_solve(gi: np.ndarray, gj: np.ndarray, ai: np.ndarray, aj: np.ndarray,
+                b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unconstrained best intensities (x_i, x_j) of two directions, and where they are defined.
+
+    The 2 x 2 normal equations ``[[ai, b], [b, aj]] x = (gi, gj)`` by Cramer's rule;
+    the third output is False where the Gram matrix is singular to rounding (the
+    intensities there are not meaningful).
+    """
+    det = ai * aj - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi, xj = (aj * gi - b * gj) / det, (ai * gj - b * gi) / det
+    return xi, xj, det > 1e-12 * ai * aj
+
+
 def _pair_gains(g: np.ndarray, data: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """Best-fit gain of the direction tuples ``idx`` (m, K) into the responses ``g`` (u, N)."""
     if idx.shape[1] == 1:
@@ -213,10 +227,8 @@ def _bound_log_likelihood(g: np.ndarray, data: np.ndarray, idx: np.ndarray, lo: 
     gi, gj, ai, aj, b = _pair_terms(g, data, idx)
     ui, uj = gi - lo * (ai + b), gj - lo * (b + aj)  # g . y'
     yy = data @ data - 2 * lo * (gi + gj) + lo * lo * (ai + 2 * b + aj)
-    det = ai * aj - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xi, xj = (aj * ui - b * uj) / det, (ai * uj - b * ui) / det
-    inside = (det > 1e-12 * ai * aj) & (xi >= 0) & (xj >= 0)
+    xi, xj, ok = _pair_solve(ui, uj, ai, aj, b)
+    inside = ok & (xi >= 0) & (xj >= 0)
     face = np.maximum(np.maximum(ui, 0) ** 2 / ai, np.maximum(uj, 0) ** 2 / aj)
     return (np.where(inside, xi * ui + xj * uj, face) - yy) / s2
 
@@ -232,11 +244,9 @@ def _local_widths(model, data: np.ndarray, centres: np.ndarray, sd: float) -> np
     inv = inv.reshape(centres.shape)
     slope = (unit_responses(model, used + _STEP) - unit_responses(model, used - _STEP)) / (
         2 * _STEP)
-    gi, gj, ai, aj, b = _pair_terms(unit_responses(model, used), data, inv)
-    det = ai * aj - b * b
-    ok = det > 1e-12 * ai * aj
+    xi, xj, ok = _pair_solve(*_pair_terms(unit_responses(model, used), data, inv))
+    best = np.stack([xi, xj], -1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        best = np.stack([aj * gi - b * gj, ai * gj - b * gi], -1) / det[:, None]
         width = model.sigma / (np.abs(best) * np.sqrt(np.einsum("ij,ij->i", slope, slope))[inv])
     return np.where(ok[:, None] & (width > sd), width, sd)
 
