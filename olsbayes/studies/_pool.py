@@ -2,9 +2,9 @@
 
 Its workers fork from a server process that has imported the package once
 (:mod:`olsbayes._forkserver`); until the first worker has delivered a call the
-caller runs queued calls itself, so a small study never waits for the pool.
-Calls are deterministic, so where one ran never changes its result.  Workers
-exit when the study's process dies.
+caller runs queued calls itself, so a small study never waits for the pool, and the
+pool gets the calls still queued the moment it runs.  Calls are deterministic, so
+where one ran never changes its result.  Workers exit when the study's process dies.
 """
 
 from __future__ import annotations
@@ -27,26 +27,37 @@ class PoolFuture:
     """A call for the local pool that the study's own process may run instead.
 
     ``inner`` is the pool's future once the call has been handed to the pool
-    (None before: the pool is still starting).  :meth:`run_here` runs the call in
-    this process, cancelling the pool's copy; calls are deterministic, so where a
-    call ran never changes its result.
+    (None before: the pool is still starting).  A call is either handed over or
+    claimed by this process (:meth:`claim`, then :meth:`run_here`), never both:
+    the two happen under one lock shared by the calls of a pool.
     """
 
-    def __init__(self, fn: Callable, args: tuple):
+    def __init__(self, fn: Callable, args: tuple, lock: threading.Lock | None = None):
         self.inner: cf.Future | None = None
         self._call = (fn, args)
         self._outcome: tuple[bool, Any] | None = None
+        self._claimed = False
+        self._lock = lock if lock is not None else threading.Lock()
 
     @property
     def settled(self) -> bool:
         """Whether the call ran here (or was cancelled before it reached the pool)."""
         return self._outcome is not None
 
+    def claim(self) -> bool:
+        """Reserve the call for this process; False if handed over or claimed already."""
+        with self._lock:
+            if self.inner is None and not self._claimed and self._outcome is None:
+                self._claimed = True
+                return True
+            return False
+
     def hand_to(self, pool: cf.Executor) -> None:
-        """Give the call to the pool unless it ran here already."""
-        if self.inner is None and self._outcome is None:
-            fn, args = self._call
-            self.inner = pool.submit(fn, *args)
+        """Give the call to the pool unless it is claimed here, ran here or was cancelled."""
+        with self._lock:
+            if self.inner is None and not self._claimed and self._outcome is None:
+                fn, args = self._call
+                self.inner = pool.submit(fn, *args)
 
     def run_here(self) -> None:
         """Run the call in this process (its exception, if any, is kept for result())."""
@@ -58,7 +69,7 @@ class PoolFuture:
 
     def result(self) -> Any:
         """The call's value, or its exception raised here (run here if still unsent)."""
-        if self._outcome is None and self.inner is None:
+        if self._outcome is None and self.claim():
             self.run_here()
         if self._outcome is not None:
             ok, value = self._outcome
@@ -76,11 +87,12 @@ class PoolFuture:
 
     def cancel(self) -> bool:
         """Cancel the call if it has not started (here or in the pool)."""
-        if self._outcome is not None:
-            return False
-        if self.inner is None:
-            self._outcome = (False, cf.CancelledError())
-            return True
+        with self._lock:
+            if self._outcome is not None or self._claimed:
+                return False
+            if self.inner is None:
+                self._outcome = (False, cf.CancelledError())
+                return True
         return self.inner.cancel()
 
 
@@ -101,39 +113,54 @@ class LocalPool:
     """A ``ProcessPoolExecutor`` started in the background while the caller works.
 
     Starting the pool (the fork server importing the package, then the first
-    worker) takes seconds; a helper thread does it while :meth:`wait_first` runs
-    queued calls in the calling process.  Once the pool runs, calls go to it, and
-    until its first result the caller keeps running calls: one it can take back
-    from the pool, else the oldest pending one (whose pool copy then runs twice).
-    The start waits ``delay`` seconds first, and does not happen if the pool is
-    closed by then: until it starts, the caller runs every call.
+    worker) takes from tens of ms to seconds; a helper thread does it while
+    :meth:`wait_first` runs queued calls in the calling process, and hands the pool
+    every call still queued the moment it runs, so its workers never wait for the
+    caller to finish a call.  Until the pool's first result the caller keeps
+    running calls: one it can take back from the pool, else the oldest pending one
+    (whose pool copy then runs twice).  The start waits ``delay`` seconds first,
+    and does not happen if the pool is closed by then: until it starts, the caller
+    runs every call.
     """
 
     def __init__(self, n_workers: int, delay: float = 0.0):
-        ctx = forkserver_context()
-        self.pool = cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx,
+        self.pool = cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=forkserver_context(),
                                            initializer=_end_with, initargs=(os.getpid(),))
         self.ready = threading.Event()
         self.delivered = False
         self._closed = threading.Event()
+        self._lock = threading.Lock()  # shared by the calls: handed over or run here, not both
+        self._queued: list[PoolFuture] = []
         threading.Thread(target=self._start, args=(delay,), name="olsbayes-study-pool-start",
                          daemon=True).start()
 
     def _start(self, delay: float) -> None:
-        """Start the pool after ``delay`` seconds, unless closed by then."""
+        """Start the pool after ``delay`` seconds unless closed; hand it the queued calls."""
         if delay > 0 and self._closed.wait(delay):
             return  # nothing was handed over: no one waits for ready
         try:
             self.pool.submit(os.getpid).result()
         except BaseException:  # noqa: BLE001 - a broken pool reports through the calls
             pass
-        finally:
+        with self._lock:
+            queued, self._queued = self._queued, []
             self.ready.set()
+        try:
+            for f in queued:
+                if self._closed.is_set():
+                    break
+                f.hand_to(self.pool)
+        except RuntimeError:  # closed meanwhile: the pool takes no more calls
+            pass
 
     def submit(self, fn: Callable, *args: Any) -> PoolFuture:
         """A call for the pool (handed over now if the pool runs)."""
-        fut = PoolFuture(fn, args)
-        if self.ready.is_set():
+        fut = PoolFuture(fn, args, self._lock)
+        with self._lock:
+            queued = not self.ready.is_set()
+            if queued:
+                self._queued.append(fut)
+        if not queued:
             fut.hand_to(self.pool)
         return fut
 
@@ -141,7 +168,7 @@ class LocalPool:
         """At least one of ``pending`` done, run here while the pool is not delivering."""
         pick = None
         if not self.ready.is_set():
-            pick = next((f for f in pending if f.inner is None and not f.settled), None)
+            pick = next((f for f in pending if f.claim()), None)
         if pick is None:
             self.ready.wait()
             for f in pending:

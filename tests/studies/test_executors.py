@@ -37,6 +37,27 @@ def test_pool_calls_run_here_while_unsent_and_keep_their_errors():
         dropped.result()
 
 
+def test_the_pool_takes_the_queued_calls_as_soon_as_it_runs():
+    # calls queued while the pool starts go to it from the starting thread, not when
+    # the caller next waits (a caller busy with a long call would leave it idle); a
+    # call claimed by the caller is never handed over
+    from olsbayes.studies._pool import LocalPool
+
+    pool = LocalPool(1, delay=0.5)
+    try:
+        calls = [pool.submit(os.getpid) for _ in range(3)]
+        assert calls[0].claim() and not calls[0].claim()
+        assert pool.ready.wait(120)
+        deadline = time.monotonic() + 10
+        while calls[2].inner is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert calls[0].inner is None and None not in (calls[1].inner, calls[2].inner)
+        calls[0].run_here()
+        assert calls[0].result() == os.getpid() != calls[1].result() == calls[2].result()
+    finally:
+        pool.close()
+
+
 def _pools(monkeypatch, delay: float) -> list:
     """Set the study's pool start delay; per process pool made from now on, the calls
     handed to it (the first: the start's ``os.getpid``)."""
