@@ -169,6 +169,8 @@ class LocalPool:
         pick = None
         if not self.ready.is_set():
             pick = next((f for f in pending if f.claim()), None)
+            with self._lock:  # the queue holds only calls the pool may still get
+                self._queued = [f for f in self._queued if f is not pick]
         if pick is None:
             self.ready.wait()
             for f in pending:
