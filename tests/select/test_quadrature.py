@@ -73,8 +73,9 @@ def test_one_source_matches_scipy_double_quadrature():
 
 def _aligned_only(model, data, k, sd, margin, lo):
     """The screen with the square fine cells skipped: cells aligned with the likelihood."""
-    kept, n0 = cells._coarse(model, data, k, sd, margin, cells.cell_budget())
-    return cells.aligned_cells(model, data, kept, n0, sd, margin, cells.cell_budget(), lo)
+    cap = cells.cell_budget()
+    kept, n0 = cells._coarse(model, data, k, sd, margin, cap)
+    return cells.aligned_cells(model, data, kept, n0, sd, margin, cap, lo)
 
 
 @pytest.mark.parametrize("aligned", [False, True], ids=["square", "aligned"])

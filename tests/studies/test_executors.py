@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import pytest
@@ -43,10 +44,19 @@ def test_the_pool_takes_the_queued_calls_as_soon_as_it_runs():
     # call claimed by the caller is never handed over
     from olsbayes.studies._pool import LocalPool
 
-    pool = LocalPool(1, delay=0.5)
+    gate = threading.Event()
+
+    class Gated(LocalPool):  # starts only once the calls are queued and one is claimed
+        def _start(self, delay):
+            gate.wait(120)
+            super()._start(0.0)
+
+    pool = Gated(1)
     try:
         calls = [pool.submit(os.getpid) for _ in range(3)]
         assert calls[0].claim() and not calls[0].claim()
+        assert not pool.ready.is_set() and [c.inner for c in calls] == [None] * 3
+        gate.set()
         assert pool.ready.wait(120)
         deadline = time.monotonic() + 10
         while calls[2].inner is None and time.monotonic() < deadline:
@@ -56,6 +66,7 @@ def test_the_pool_takes_the_queued_calls_as_soon_as_it_runs():
         assert calls[0].result() == os.getpid() != calls[1].result() == calls[2].result()
     finally:
         pool.close()
+        gate.set()
 
 
 def _pools(monkeypatch, delay: float) -> list:
