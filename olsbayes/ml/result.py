@@ -49,7 +49,7 @@ class MLResult:
         std apart; :mod:`olsbayes.ml.rivals`): small values (< 3 warns
         :class:`~olsbayes.errors.MultimodalWarning`) mean a rival mode, where
         ``cov`` understates the uncertainty.  inf: no distinct optimum reached
-        (not a proof that none exists); NaN: not assessed (``"exact"``, K > 6).
+        (not a proof that none exists); NaN: not assessed (``"exact"``).
     method : str
         ``"fast"``, ``"multistart"`` or ``"exact"``.
     n_sources : int

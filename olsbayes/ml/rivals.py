@@ -29,7 +29,10 @@ DISTINCT_STD = 3.0
 #: fit_ml warns (MultimodalWarning) when a rival is within this log-likelihood.
 RIVAL_WARN = 3.0
 
-#: Matching sources is exhaustive over K! permutations: assessed up to this K.
+#: The compiled rule for angle fits matches sources over all K! permutations: used
+#: up to this K.  Beyond it the numpy rule matches them (by
+#: :func:`olsbayes.exchange.best_permutation`: exhaustive up to
+#: :data:`~olsbayes.exchange.MAX_EXHAUSTIVE` sources, the Hungarian algorithm beyond).
 MAX_SOURCES = 6
 
 #: Optima further below the estimate than this (log-likelihood units) are ignored.
@@ -63,15 +66,14 @@ def rival_gap(
     -------
     ndarray, shape (T,)
         >= 0; inf where no distinct optimum was reached within
-        :data:`RIVAL_RANGE`, NaN where not assessed (no alternatives, or K >
-        :data:`MAX_SOURCES`).
+        :data:`RIVAL_RANGE`, NaN where not assessed (no alternatives).
     """
     t = x.shape[0]
     k = model.n_sources_of(x)
-    if alternatives is None or k > MAX_SOURCES:
+    if alternatives is None:
         return np.full(t, np.nan)
     alt_x, alt_chi2 = alternatives
-    if model.kind == "angle":  # compiled, same rule
+    if model.kind == "angle" and k <= MAX_SOURCES:  # compiled, same rule
         from ._numba import rivals  # numba is imported on first use
 
         return rivals.angle_rival_gap(x, chi2, alt_x, alt_chi2, std, 0.5 / model.sigma**2, TIE,

@@ -315,6 +315,50 @@ def test_compiled_post_fit_checks_match_numpy():
     np.testing.assert_array_equal(ck.close_or_weak(x, 4 * h, 0.05), want)
 
 
+@pytest.mark.parametrize("k", [7, 8])
+def test_rival_gaps_beyond_the_compiled_rule_match_it(k):
+    """From K = 7 on, rival gaps come from the numpy rule (sources matched by the
+    Hungarian algorithm beyond 7): equal to the compiled rule's exhaustive K!
+    matching, which the package runs only up to K = 6."""
+    from olsbayes.exchange import permutations
+    from olsbayes.ml._numba.rivals import angle_rival_gap
+    from olsbayes.ml.rivals import DISTINCT_STD, RIVAL_RANGE, TIE, rival_gap
+
+    model = ob.Model(ob.Ring(64), 1e-2)
+    rng = np.random.default_rng(45 + k)
+    t, c = 40, 6
+    x = model.canonical(np.column_stack([rng.uniform(-np.pi, np.pi, (t, k)),
+                                         rng.uniform(0, 1, (t, k))])[:, np.arange(2 * k).reshape(
+                                             2, k).T.ravel()])
+    alt = x[:, None, :] + rng.normal(0, 1, (t, c, 2 * k)) * rng.uniform(1e-4, 0.02, (t, c, 1))
+    alt[:, :, 0::2] = alt[:, :, 0::2][:, :, rng.permutation(k)]  # sources in another order
+    alt[:, :, 1::2] = alt[:, :, 1::2][:, :, rng.permutation(k)]
+    alt_chi2 = rng.uniform(0.0, 1e-3, (t, c))
+    chi2 = np.full(t, 2e-4)
+    std = rng.uniform(0.002, 0.02, (t, 2 * k))
+    got = rival_gap(model, x, chi2, (alt, alt_chi2), std)
+    ref = angle_rival_gap(x, chi2, alt, alt_chi2, std, 0.5 / model.sigma**2, TIE, RIVAL_RANGE,
+                          permutations(k), DISTINCT_STD)
+    assert np.isfinite(ref).any() and np.isinf(ref).any()
+    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
+    np.testing.assert_allclose(got, ref, rtol=1e-14)
+
+
+def test_eight_source_fits_report_their_rival_optima():
+    """Eight sources on a 64-ring at sigma = 0.01: many optima lie within a few
+    log-likelihood units of each other, and the fit reports the ones it reached
+    (finite rival gaps, a MultimodalWarning) instead of leaving them unassessed."""
+    model = ob.Model(ob.Ring(64), 1e-2)
+    angles = np.radians(np.arange(8) * 45.0 + 10.0)
+    truth = np.column_stack([angles, np.linspace(0.5, 1.0, 8)]).ravel()
+    data = model.simulate(truth, size=3, rng=8)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        res = fit_ml(model, data, 8)
+    assert any(w.category is ob.MultimodalWarning for w in seen)
+    assert np.all(res.rival_gap >= 0) and np.any(res.rival_gap < 3.0)
+
+
 def test_a_large_batch_says_so_on_stderr(monkeypatch, capsys):
     """Batches beyond NOTICE_BATCH data vectors x sub-sensors x K^2 print one line
     on stderr before they start; single vectors and small batches print nothing."""
