@@ -344,6 +344,40 @@ def test_rival_gaps_beyond_the_compiled_rule_match_it(k):
     np.testing.assert_allclose(got, ref, rtol=1e-14)
 
 
+def test_rival_gap_numpy_nearest_first_equals_matching_every_candidate():
+    """The numpy rule matches candidates nearest first and stops at the first
+    distinct one: the same gaps as matching all of them, here with up to 39
+    near-copies of the estimate (not distinct) below the first distinct optimum."""
+    from olsbayes.exchange import estimation_errors
+    from olsbayes.ml.rivals import DISTINCT_STD, RIVAL_RANGE, TIE, rival_gap_numpy
+
+    model = ob.Model(ob.Sphere.grid(6, 8), 1e-2)
+    rng = np.random.default_rng(46)
+    t, c, k = 60, 40, 3
+    x = np.column_stack([rng.uniform(-np.pi, np.pi, (t, k)), rng.uniform(-1.2, 1.2, (t, k)),
+                         rng.uniform(0.5, 1, (t, k))])[:, [0, 3, 6, 1, 4, 7, 2, 5, 8]]
+    x = model.canonical(x)
+    std = np.full((t, 3 * k), 0.01)
+    far = rng.uniform(size=(t, c)) < rng.uniform(0.0, 0.1, (t, 1))  # distinct candidates
+    alt = x[:, None, :] + rng.normal(0, 1e-3, (t, c, 3 * k)) + far[..., None] * rng.normal(
+        0, 0.2, (t, c, 3 * k))
+    alt_chi2 = 2e-4 + rng.uniform(0.0, 3e-3, (t, c))
+    alt_chi2[rng.uniform(size=(t, c)) < 0.1] = np.inf
+    chi2 = np.full(t, 2e-4)
+    got = rival_gap_numpy(model, x, chi2, alt, alt_chi2, std)
+    gap = (alt_chi2 - chi2[:, None]) / (2 * model.sigma**2)
+    ref = np.full(t, np.inf)
+    loc = np.arange(3 * k) % 3 != 2
+    for i in range(t):
+        for j in range(c):
+            if TIE < gap[i, j] < RIVAL_RANGE:
+                err = estimation_errors(model, alt[i, j], x[i])
+                if np.any(np.abs(err[loc]) > DISTINCT_STD * std[i, loc]):
+                    ref[i] = min(ref[i], gap[i, j])
+    assert np.isfinite(ref).sum() > 20 and np.isinf(ref).sum() > 5
+    np.testing.assert_array_equal(got, ref)
+
+
 def test_eight_source_fits_report_their_rival_optima():
     """Eight sources on a 64-ring at sigma = 0.01: many optima lie within a few
     log-likelihood units of each other, and the fit reports the ones it reached

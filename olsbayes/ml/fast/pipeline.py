@@ -68,7 +68,8 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
 
     ``grid`` (M, d): candidate locations; ``options``: resolved for K
     (:meth:`FastOptions.resolve`).  ``alternatives`` of the outcome hold the
-    optima the search candidates reached (for :mod:`olsbayes.ml.rivals`).
+    optima the search candidates and the scattered starts reached (for
+    :mod:`olsbayes.ml.rivals`).
     """
     k = n_sources
     g = atoms(model, grid)
@@ -80,12 +81,11 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
         out = restart(model, data, out, options.restart_scale * grid_step(model, grid), options)
     pool = found
     if options.scatter:
-        out = scattered(model, data, out, grid, options, keep=bool(options.slide))
-        if options.slide:
-            pool = tuple(np.concatenate([a, b], axis=1) for a, b in zip(found, out.alternatives))
+        out = scattered(model, data, out, grid, options, keep=True)
+        pool = tuple(np.concatenate([a, b], axis=1) for a, b in zip(found, out.alternatives))
     if options.slide:
         out = slide(model, data, out, pool, g, grid, options)
     if options.kink_hops:
         out = kink_hops(model, data, out, options)
-    out = dataclasses.replace(kink_polish(model, data, out, options), alternatives=found)
+    out = dataclasses.replace(kink_polish(model, data, out, options), alternatives=pool)
     return escalate(model, data, out, options) if options.escalate else out
