@@ -327,12 +327,11 @@ def test_rival_gaps_beyond_the_compiled_rule_match_it(k):
     model = ob.Model(ob.Ring(64), 1e-2)
     rng = np.random.default_rng(45 + k)
     t, c = 40, 6
-    x = model.canonical(np.column_stack([rng.uniform(-np.pi, np.pi, (t, k)),
-                                         rng.uniform(0, 1, (t, k))])[:, np.arange(2 * k).reshape(
-                                             2, k).T.ravel()])
+    x = model.canonical(np.stack([rng.uniform(-np.pi, np.pi, (t, k)),
+                                  rng.uniform(0, 1, (t, k))], axis=-1).reshape(t, 2 * k))
     alt = x[:, None, :] + rng.normal(0, 1, (t, c, 2 * k)) * rng.uniform(1e-4, 0.02, (t, c, 1))
-    alt[:, :, 0::2] = alt[:, :, 0::2][:, :, rng.permutation(k)]  # sources in another order
-    alt[:, :, 1::2] = alt[:, :, 1::2][:, :, rng.permutation(k)]
+    perm = rng.permutation(k)  # the candidates list their sources in another order
+    alt = alt.reshape(t, c, k, 2)[:, :, perm].reshape(t, c, 2 * k)
     alt_chi2 = rng.uniform(0.0, 1e-3, (t, c))
     chi2 = np.full(t, 2e-4)
     std = rng.uniform(0.002, 0.02, (t, 2 * k))
