@@ -81,7 +81,7 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
         out = restart(model, data, out, options.restart_scale * grid_step(model, grid), options)
     pool = found
     if options.scatter:
-        out = scattered(model, data, out, grid, options, keep=True)
+        out = scattered(model, data, out, grid, options)
         pool = tuple(np.concatenate([a, b], axis=1) for a, b in zip(found, out.alternatives))
     if options.slide:
         out = slide(model, data, out, pool, g, grid, options)

@@ -59,16 +59,16 @@ def _starts(model: Model, data: np.ndarray, loc: np.ndarray) -> np.ndarray:
 
 
 def scattered(model: Model, data: np.ndarray, out: FitOutcome, grid: np.ndarray,
-              opts: FastOptions, keep: bool = False) -> FitOutcome:
+              opts: FastOptions) -> FitOutcome:
     """``opts.scatter`` scattered starts per data vector in one LM run; the better fits win.
 
-    ``keep``: the optima of the runs, (T, n, P) with their chi^2 (T, n) (inf where a
-    run did not converge), go to ``alternatives`` of the result.
+    The optima of the runs, (T, n, P) with their chi^2 (T, n) (inf where a run did
+    not converge), go to ``alternatives`` of the result (the sliding search's
+    starts and the rival check's candidates).
     """
     k = out.x.shape[1] // (model.n_loc + 1)
     loc = scatter_locations(model, k, opts.scatter, grid)
     starts = _starts(model, data, loc)
     rows = np.arange(data.shape[0])
-    new = refine_starts(model, data, starts, opts, _known(out), keep=keep)
-    merged = _merge(out, rows, new)
-    return dataclasses.replace(merged, alternatives=new.alternatives) if keep else merged
+    new = refine_starts(model, data, starts, opts, _known(out), keep=True)
+    return dataclasses.replace(_merge(out, rows, new), alternatives=new.alternatives)
