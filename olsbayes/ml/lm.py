@@ -202,11 +202,13 @@ def refine_batch(
     Parameters
     ----------
     kinks : bool
-        Rings with the clipped cosine: a rejected step that carries a source across
-        a sub-sensor's horizon is cut back to the first crossing, and a source stuck
-        on a horizon has its angle held (:func:`olsbayes.ml._numba.lm._lm_trial`).
-        Other models have no such horizons in their derivative (their laws are
-        smooth, or custom), so the option does not apply to them.
+        Rings and spheres with the clipped cosine: a rejected step that carries a
+        source across a sub-sensor's horizon is cut back to the first crossing, and
+        a source stuck on a horizon is held there: a ring source's angle is frozen,
+        a sphere source slides along the horizon's great circle (its direction is
+        frozen on a third one; :func:`olsbayes.ml._numba.lm._lm_trial`).  Other
+        models have no such horizons in their derivative (their laws are smooth,
+        or custom) or are not covered, so the option does not apply to them.
     dedupe : Dedupe, optional
         Stop runs at optima already known for their data (see :class:`Dedupe`).
     """

@@ -18,7 +18,8 @@ per sensor-source pair (one cos/sin per source and iteration).  Other laws take
 the numpy path.
 
 Options used by the fast fit: ``kinks`` cuts rejected steps at the sub-sensor
-horizons of a ring with the clipped cosine (:func:`_lm_trial`); runs of a group
+horizons of a ring or sphere with the clipped cosine and holds sources on them
+(:func:`_lm_trial`, :mod:`.horizons`); runs of a group
 stop at optima found before (:class:`~olsbayes.ml.lm.Dedupe`), and on such a ring
 also on entering the linear cell of one (:func:`_known_cell`).
 
@@ -36,6 +37,16 @@ import numpy as np
 from ...model import Model
 from ...sensitivity import CosinePower, is_clipped_cosine
 from ..damping import DOWN, EIG_FLOOR, FLOOR, MAX, START, UP
+from .horizons import (
+    CUT,
+    PROBE,
+    along_horizons,
+    back_to_lonlat,
+    onto_horizons,
+    probe,
+    rejected_step,
+    renew_normals,
+)
 from .linalg import _solve_spd
 from .model import _LAW_COSINE, _LAW_POWER, _residual
 
@@ -87,6 +98,16 @@ def _project(kind, zfl, x):  # pragma: no cover - compiled
             x[b + 2] = zfl
 
 
+@numba.njit(cache=True, inline="always")
+def _propose(kind, zfl, nrm, x, step, scale, xn, fk, hq, held):  # pragma: no cover - compiled
+    """xn = x + scale * step, made feasible, held sphere sources put back on their horizons."""
+    for i in range(x.size):
+        xn[i] = x[i] + scale * step[i]
+    _project(kind, zfl, xn)
+    if held:
+        onto_horizons(nrm, xn, fk, hq)
+
+
 @numba.njit(cache=True, fastmath={"reassoc"})
 def _normal_eq(jt, r, a, g):  # pragma: no cover - compiled
     """a = jt jt^T (P, P) and g = jt r (P,).
@@ -109,11 +130,13 @@ def _normal_eq(jt, r, a, g):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - compiled
+def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step, hc):  # pragma: no cover - compiled
     """Damped, bounded Gauss–Newton step into ``step``; returns the predicted decrease.
 
     Fixed parameters (frozen, or an intensity at 0 whose gradient points
-    outwards) get a zero step, as in batch._lm_step.
+    outwards) get a zero step, as in batch._lm_step.  A sphere source with a
+    nonzero unit vector (hc[b], hc[b + 1]) moves normal to it, along a horizon
+    (:func:`.horizons.along_horizons`).
     """
     p = g.size
     top = 0.0
@@ -135,7 +158,11 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
             for j in range(p):
                 ad[i, j] = 0.0 if fx[j] else a[i, j]
             ad[i, i] = a[i, i] + lam * max(a[i, i], floor)
+    if d1 == 3:
+        along_horizons(ad, gm, hc, fx)
     _solve_spd(ad, gm, step)
+    if d1 == 3:
+        back_to_lonlat(step, gm, g, hc, fx)
     pred = 0.0
     for i in range(p):
         acc = 0.0
@@ -143,31 +170,6 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step):  # pragma: no cover - 
             acc += a[i, j] * step[j]
         pred += step[i] * (2.0 * gm[i] - acc)
     return pred
-
-
-@numba.njit(cache=True)
-def _kink_alpha(nrm, x, step, jt, jt2, fk):  # pragma: no cover - compiled
-    """First kink crossing along a ring step: (alpha, source), alpha > 1 if none.
-
-    A sub-sensor whose clipped cosine is positive at x but not at x + step (or
-    the reverse) has its 90 deg horizon crossed by that source; alpha is the
-    fraction of the step at which the first crossing happens.
-    """
-    best, src = 2.0, -1
-    for k in range(x.size // 2):
-        dth = step[2 * k]
-        if fk[2 * k] or dth == 0.0:
-            continue
-        ig = 2 * k + 1
-        for n in range(nrm.shape[1]):
-            if (jt[ig, n] > 0.0) == (jt2[ig, n] > 0.0):
-                continue
-            psi = x[2 * k] - math.atan2(nrm[1, n], nrm[0, n])
-            t = (0.5 * math.pi - psi) % math.pi if dth > 0.0 else (psi + 0.5 * math.pi) % math.pi
-            a = t / abs(dth)
-            if a < best:
-                best, src = a, k
-    return best, src
 
 
 @numba.njit(cache=True)
@@ -232,17 +234,21 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
               kinks, known, n_known, tol, cells, known_vis, known_ok):  # pragma: no cover
     """Bounded LM of one trial from x (in place); returns (chi2, n_iter, converged, stalled).
 
-    w: workspace arrays (jt, r, jt2, r2, a, ad, g, gm, step, x_new, fx, fk).  Proposals
+    w: workspace arrays (jt, r, jt2, r2, a, ad, g, gm, step, x_new, fx, fk, hc, hq).  Proposals
     are evaluated with their Jacobian, so an accepted step needs no re-evaluation
     (the same numbers as evaluating again at the new point); after a rejected
     step the normal equations at x are reused.
 
-    ``kinks`` (ring, clipped cosine): a rejected step that carries a source across
-    a sub-sensor's horizon is cut back to the first crossing (accepted if it
-    lowers chi^2); a source already on the horizon whose step is rejected gets
-    its angle frozen for the rest of the run.  Without this LM approaches a
-    minimum on a kink by ever shorter zig-zag steps (~100 evaluations instead
-    of ~10 at sigma = 0.1).
+    ``kinks`` (ring or sphere, clipped cosine): a rejected step that carries a
+    source across a sub-sensor's horizon is cut back to the first crossing
+    (accepted if it lowers chi^2).  Without this LM approaches a minimum on a
+    kink by ever shorter zig-zag steps (~100 evaluations instead of ~10 at sigma
+    = 0.1).  A ring source already on the horizon whose step is rejected gets its
+    angle frozen for the rest of the run.  A sphere source there is probed
+    (:func:`.horizons.probe`): it moves to the best lower point along or off the
+    horizon, and if none is lower it is held on the horizon, sliding along its
+    great circle (put back onto it after every step), or frozen where two
+    horizons cross.
 
     Known optima (rows of ``known[:n_known]``, converged runs of the same data):
     a run whose accepted iterate comes within ``tol`` (max norm) of one stops
@@ -251,55 +257,58 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
     linear cell of one (``known_vis``, ``known_ok``: :func:`_cell`) stops with that
     optimum as its result.
     """
-    jt, r, jt2, r2, a, ad, g, gm, step, xn, fx, fk = w
+    jt, r, jt2, r2, a, ad, g, gm, step, xn, fx, fk, hc, hq = w
     d1 = kind + 2
-    kinks = kinks and kind == 0 and law == _LAW_COSINE
+    kinks = kinks and kind <= 1 and law == _LAW_COSINE
+    held = kinks and kind == 1
     for i in range(x.size):
-        fk[i] = fz[i]
-    lam = START
+        fk[i], hc[i], hq[i] = fz[i], 0.0, -1
+    lam, extra = START, 0
     chi2_old = _residual(kind, law, p, nrm, pos, x, s, jt, r, True)
     _normal_eq(jt, r, a, g)
     for it in range(max_iter):
-        pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step)
-        for i in range(x.size):
-            xn[i] = x[i] + step[i]
-        _project(kind, zfl, xn)
+        pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step, hc)
+        _propose(kind, zfl, nrm, x, step, 1.0, xn, fk, hq, held)
         chi2_new = _residual(kind, law, p, nrm, pos, xn, s, jt2, r2, True)
         tiny = ftol * chi2_old + 1e-30
         acc = chi2_new < chi2_old
         cut = False
         if kinks and not acc:
-            alpha, src = _kink_alpha(nrm, x, step, jt, jt2, fk)
-            if alpha <= 1.0 and alpha * abs(step[2 * src]) <= 1e-12:
-                fk[2 * src] = True  # on the horizon: hold the angle, re-solve
+            alpha, how, src, sub = rejected_step(kind, nrm, x, step, jt, jt2, fk, hc, hq)
+            if how == PROBE:
+                chi2_old, m = probe(kind, law, p, nrm, pos, s, x, xn, jt, r, jt2, r2, fk, hc, hq,
+                                    src, sub, step, chi2_old)
+                extra += (m + 1) // 2  # evaluations, counted as iterations of two
+                _normal_eq(jt, r, a, g)
+            if how != CUT:
                 continue
             if alpha < 1.0:
-                for i in range(x.size):
-                    xn[i] = x[i] + alpha * step[i]
-                _project(kind, zfl, xn)
+                _propose(kind, zfl, nrm, x, step, alpha, xn, fk, hq, held)
                 chi2_new = _residual(kind, law, p, nrm, pos, xn, s, jt2, r2, True)
                 acc = cut = chi2_new < chi2_old
         small = not cut and ((acc and chi2_old - chi2_new <= tiny) or pred <= tiny)
         if acc:
             x[:] = xn
+            if held:
+                renew_normals(nrm, x, fk, hq, hc)
             if not cut:
                 lam = max(lam / DOWN, FLOOR)
             if _near(known, n_known, x, tol):
-                return chi2_new, it + 1, True, False
+                return chi2_new, it + 1 + extra, True, False
             j = _known_cell(jt2, known_vis, known_ok, n_known) if cells else -1
             if j >= 0:  # the run would end at that optimum: report it
                 x[:] = known[j]
                 chi2_new = _residual(kind, law, p, nrm, pos, x, s, jt2, r2, False)
-                return chi2_new, it + 1, True, False
+                return chi2_new, it + 1 + extra, True, False
         else:
             lam *= UP
         stall = lam > MAX and not small
         if small or stall:
-            return (chi2_new if acc else chi2_old), it + 1, True, stall
+            return (chi2_new if acc else chi2_old), it + 1 + extra, True, stall
         if acc:
             jt, jt2, r, r2, chi2_old = jt2, jt, r2, r, chi2_new
             _normal_eq(jt, r, a, g)
-    return _residual(kind, law, p, nrm, pos, x, s, jt, r, False), max_iter, False, False
+    return _residual(kind, law, p, nrm, pos, x, s, jt, r, False), max_iter + extra, False, False
 
 
 @numba.njit(cache=True)
@@ -317,7 +326,8 @@ def _lm_all(kind, law, p, nrm, pos, zfl, data, x, frozen, max_iter, ftol, kinks,
     # _normal_eq then have no scalar remainder loop
     w = (np.zeros((np_, n)), np.zeros(n), np.zeros((np_, n)), np.zeros(n),
          np.empty((np_, np_)), np.empty((np_, np_)), np.empty(np_), np.empty(np_),
-         np.empty(np_), np.empty(np_), np.empty(np_, np.bool_), np.empty(np_, np.bool_))
+         np.empty(np_), np.empty(np_), np.empty(np_, np.bool_), np.empty(np_, np.bool_),
+         np.zeros(np_), np.full(np_, -1, np.int64))
     known = np.empty((group + 1, np_))
     cells = cells and kinks and kind == 0 and law == _LAW_COSINE
     known_vis = np.zeros((group + 1, np_ // 2 if cells else 0, data.shape[1]), np.bool_)
@@ -347,8 +357,8 @@ def lm_batch(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Run the compiled LM over data (T, N) from x0 (T, P) for a supported model.
 
-    ``kinks``: cut steps at sub-sensor horizons (ring, clipped cosine; see
-    :func:`_lm_trial`).  ``dedupe`` (:class:`~olsbayes.ml.lm.Dedupe`): runs of a
+    ``kinks``: cut steps at sub-sensor horizons (ring or sphere, clipped cosine;
+    see :func:`_lm_trial`).  ``dedupe`` (:class:`~olsbayes.ml.lm.Dedupe`): runs of a
     group (consecutive rows on the same data) stop at known optima (:func:`_lm_all`).
 
     Returns x (T, P), chi2 (T,), converged (T,), n_evaluations (T,) (two per

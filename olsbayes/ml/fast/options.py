@@ -104,7 +104,9 @@ class FastOptions:
         Alternating-projection sweeps at most (>= 1).
     kink_cuts : bool
         LM steps are cut at the first sub-sensor horizon they cross (rings with
-        the clipped cosine).
+        the clipped cosine).  On a sphere a cut costs one more evaluation on nearly
+        every step, so there only the final polish cuts steps and holds sources
+        on horizons (:func:`~olsbayes.ml.fast.refine.kink_polish`).
     dedupe_tol : float
         A run stops within this distance (max norm, rad and intensity units) of an
         optimum already found for its data (>= 0; 0 turns it off).

@@ -13,7 +13,7 @@ knobs and their per-K defaults are :class:`~olsbayes.ml.fast.options.FastOptions
 2. :func:`~olsbayes.ml.fast.refine.refine_starts` -- one joint bounded
    Levenberg–Marquardt run over all candidates of all data vectors (analytic
    Jacobian); the best likelihood per data vector wins.  Steps are cut at the
-   first sub-sensor horizon they cross (``kink_cuts``), so a minimum with a
+   first sub-sensor horizon they cross (``kink_cuts``, rings), so a minimum with a
    source on a kink is reached in a few steps instead of a long zig-zag.
 3. :func:`~olsbayes.ml.fast.refine.restart` -- deterministic perturbed restarts
    around that optimum (``n_restarts`` sign patterns of ``restart_scale`` grid
@@ -28,7 +28,8 @@ knobs and their per-K defaults are :class:`~olsbayes.ml.fast.options.FastOptions
    the likelihood (``kink_hops``: planar arrays with a kinked law, K >= 2).
 5. :func:`~olsbayes.ml.fast.refine.kink_polish` -- fits with a source on a kink
    re-optimised with that source's location held (LM's one-sided Jacobian stalls
-   there otherwise).
+   there otherwise); on a sphere every fit refined once more by LM holding its
+   sources on the horizons they reach, along which they may still slide.
 6. :func:`~olsbayes.ml.fast.escalate.escalate` -- fits with close or lopsided
    sources refitted by exact enumeration (``escalate``: rings with the clipped
    cosine, K = 2, 3 by default).

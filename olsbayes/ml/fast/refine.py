@@ -14,6 +14,7 @@ import numpy as np
 
 from ...circular import wrap_angle
 from ...model import Model
+from ...sensitivity import is_clipped_cosine
 from ..lm import Dedupe, refine_batch
 from ..outcome import FitOutcome
 from .options import FastOptions
@@ -38,7 +39,8 @@ def refine_starts(
     dedupe = (Dedupe(group=c, base=known, tol=opts.dedupe_tol, cells=opts.cell_stop)
               if opts.dedupe_tol > 0 else None)
     cand = refine_batch(model, np.repeat(data, c, axis=0), starts.reshape(t * c, -1),
-                        max_iter=opts.max_iter, kinks=opts.kink_cuts, dedupe=dedupe)
+                        max_iter=opts.max_iter, kinks=opts.kink_cuts and model.kind == "angle",
+                        dedupe=dedupe)
     pick = np.arange(t) * c + np.argmin(cand.chi2.reshape(t, c), axis=1)
     out = cand.take(pick)
     alt = None
@@ -155,13 +157,25 @@ def kink_hops(model: Model, data: np.ndarray, out: FitOutcome,
 
 def kink_polish(model: Model, data: np.ndarray, out: FitOutcome,
                 opts: FastOptions) -> FitOutcome:
-    """Re-optimise the other parameters of fits with a source pinned on a kink.
+    """Re-optimise fits with a source pinned on a kink.
 
     At a kink the one-sided Jacobian misleads LM, which then stops with the
-    remaining parameters not quite optimal; holding the kinked source's
-    location fixed makes the rest a smooth problem.
+    remaining parameters not quite optimal.  On a ring (or plate) holding the
+    kinked source's location fixed makes the rest a smooth problem.  A sphere
+    source on a horizon may still slide along its great circle, so there (with
+    ``kink_cuts``) every fit is refined by LM holding sources on the horizons they
+    reach, twice, since a source held (or frozen where two horizons cross) for
+    the rest of one run may leave it in the next (``kinks``,
+    :func:`olsbayes.ml._numba.lm._lm_trial`).  A fit is replaced only where this
+    improves its chi^2.
     """
     if not model.sensitivity.kink:
+        return out
+    if opts.kink_cuts and model.kind == "lonlat" and is_clipped_cosine(model.sensitivity):
+        rows = np.arange(out.x.shape[0])
+        for _ in range(2):  # the second run may leave horizons the first held
+            out = _merge(out, rows, refine_batch(model, data, out.x, max_iter=opts.max_iter,
+                                                 kinks=True))
         return out
     kinked = _kinked(model, out.x, atol=1e-6)  # (T, K)
     rows = np.flatnonzero(kinked.any(axis=1))
