@@ -174,8 +174,13 @@ def kink_polish(model: Model, data: np.ndarray, out: FitOutcome,
     if opts.kink_cuts and model.kind == "lonlat" and is_clipped_cosine(model.sensitivity):
         rows = np.arange(out.x.shape[0])
         for _ in range(2):  # the second run may leave horizons the first held
-            out = _merge(out, rows, refine_batch(model, data, out.x, max_iter=opts.max_iter,
-                                                 kinks=True))
+            if rows.size == 0:
+                break
+            new = refine_batch(model, data[rows], out.x[rows], max_iter=opts.max_iter,
+                               kinks=True)
+            moved = rows[new.chi2 < out.chi2[rows] * (1 - 1e-12)]  # as _merge decides
+            out = _merge(out, rows, new)
+            rows = moved  # a run from an unchanged fit would repeat the first
         return out
     kinked = _kinked(model, out.x, atol=1e-6)  # (T, K)
     rows = np.flatnonzero(kinked.any(axis=1))
