@@ -96,7 +96,8 @@ def test_holding_horizons_ends_at_kink_minima(sphere_runs):
 
 def test_sphere_fits_end_at_kink_minima():
     """The fast fit's polish leaves no first-order descent direction (K = 3, 4 at
-    sigma = 0.03; without it 3 and 2 of these 20 fits each stopped short)."""
+    sigma = 0.03; without it 3 and 2 of these 20 fits each stopped short), and a
+    batch equals a loop of single fits."""
     model = ob.Model(ob.Sphere.grid(15, 20), 3e-2)
     rng = np.random.default_rng(12)
     for k in (3, 4):
@@ -105,6 +106,9 @@ def test_sphere_fits_end_at_kink_minima():
         fit = fit_ml(model, data, k, warn=False)
         worst = [_worst_cosine(model, s, x) for s, x in zip(data, fit.params)]
         assert max(worst) <= COS_TOL, k
+        one = [fit_ml(model, s, k, warn=False) for s in data]  # the polish's second run
+        np.testing.assert_array_equal([f.params for f in one], fit.params)  # takes a subset
+        np.testing.assert_array_equal([f.n_evaluations for f in one], fit.n_evaluations)
 
 
 def test_sphere_crossing_lies_on_the_horizon():
