@@ -204,9 +204,11 @@ def refine_batch(
     kinks : bool
         Rings and spheres with the clipped cosine: a rejected step that carries a
         source across a sub-sensor's horizon is cut back to the first crossing, and
-        a source stuck on a horizon is held there: a ring source's angle is frozen,
-        a sphere source slides along the horizon's great circle (its direction is
-        frozen on a third one; :func:`olsbayes.ml._numba.lm._lm_trial`).  Other
+        a source stuck on a horizon is dealt with there: a ring source's angle is
+        frozen; a sphere source moves to the best lower point of a few probes along
+        and across the horizon, else slides along its great circle, or has its
+        direction frozen where two horizons cross
+        (:func:`olsbayes.ml._numba.lm._lm_trial`).  Other
         models have no such horizons in their derivative (their laws are smooth,
         or custom) or are not covered, so the option does not apply to them.
     dedupe : Dedupe, optional

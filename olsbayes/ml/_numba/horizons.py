@@ -300,7 +300,7 @@ def probe(kind, law, p, nrm, pos, s, x, xn, jt, r, jt2, r2, fk, hc, hq, src, sub
     b = 3 * src
     qa, qb = (hq[src], sub) if hq[src] >= 0 else (sub, -1)
     h = math.hypot(step[b], step[b + 1])
-    chi2_new, q, m = _probes(kind, law, p, nrm, pos, s, x, xn, jt2, r2, b, qa, qb, h, chi2)
+    _, q, m = _probes(kind, law, p, nrm, pos, s, x, xn, jt2, r2, b, qa, qb, h, chi2)
     hc[b], hc[b + 1] = 0.0, 0.0
     if q == -2:
         hq[src] = qa if qb < 0 else -1

@@ -28,8 +28,8 @@ knobs and their per-K defaults are :class:`~olsbayes.ml.fast.options.FastOptions
    the likelihood (``kink_hops``: planar arrays with a kinked law, K >= 2).
 5. :func:`~olsbayes.ml.fast.refine.kink_polish` -- fits with a source on a kink
    re-optimised with that source's location held (LM's one-sided Jacobian stalls
-   there otherwise); on a sphere every fit refined once more by LM holding its
-   sources on the horizons they reach, along which they may still slide.
+   there otherwise); on a sphere (``kink_cuts``) every fit refined again, by LM
+   that cuts its steps at horizons and probes and holds its sources there.
 6. :func:`~olsbayes.ml.fast.escalate.escalate` -- fits with close or lopsided
    sources refitted by exact enumeration (``escalate``: rings with the clipped
    cosine, K = 2, 3 by default).
