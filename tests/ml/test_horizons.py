@@ -67,7 +67,7 @@ def _worst_cosine(model: ob.Model, s: np.ndarray, x: np.ndarray, h: float = 1e-7
 @pytest.fixture(scope="module")
 def sphere_runs():
     """LM from the truth, plain and holding horizons: Fig. 2 sphere, K = 3, 40 scenes
-    at sigma = 0.03 (7 of the held runs end on a horizon, 10 plain ones stop short)."""
+    at sigma = 0.03 (10 of the held runs end on a horizon, 10 plain ones stop short)."""
     model = ob.Model(ob.Sphere.grid(15, 20), 3e-2)
     rng = np.random.default_rng(11)
     x0 = _scenes(3, 40, rng)
