@@ -55,13 +55,28 @@ def ring_kink(nrm, x, step, jt, jt2, fk):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _cos_and_slope(nrm, q, lon, lat, dlon, dlat):  # pragma: no cover - compiled
-    """n_q . u(lon, lat) and its derivative along the direction (dlon, dlat)."""
+def _cos_and_gradient(nrm, q, lon, lat):  # pragma: no cover - compiled
+    """n_q . u(lon, lat) and its derivatives over lon and lat."""
     cla, sla, clo, slo = math.cos(lat), math.sin(lat), math.cos(lon), math.sin(lon)
     c = cla * clo * nrm[0, q] + cla * slo * nrm[1, q] + sla * nrm[2, q]
     c_lon = cla * (-slo * nrm[0, q] + clo * nrm[1, q])
     c_lat = -sla * (clo * nrm[0, q] + slo * nrm[1, q]) + cla * nrm[2, q]
+    return c, c_lon, c_lat
+
+
+@numba.njit(cache=True, inline="always")
+def _cos_and_slope(nrm, q, lon, lat, dlon, dlat):  # pragma: no cover - compiled
+    """n_q . u(lon, lat) and its derivative along the direction (dlon, dlat)."""
+    c, c_lon, c_lat = _cos_and_gradient(nrm, q, lon, lat)
     return c, c_lon * dlon + c_lat * dlat
+
+
+@numba.njit(cache=True, inline="always")
+def _unit_gradient(nrm, q, x, b):  # pragma: no cover - compiled
+    """Unit gradient of n_q . u over (lon, lat) at the source x[b]; (0, 0) if none."""
+    _, c_lon, c_lat = _cos_and_gradient(nrm, q, x[b], x[b + 1])
+    h = math.hypot(c_lon, c_lat)
+    return (0.0, 0.0) if h == 0.0 else (c_lon / h, c_lat / h)
 
 
 @numba.njit(cache=True, inline="always")
@@ -121,12 +136,10 @@ def _same_circle(nrm, q, r):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def horizon_normal(nrm, q, x, b, hc):  # pragma: no cover - compiled
     """hc[b], hc[b + 1]: the unit gradient of n_q . u over (lon, lat) of the source at x[b]."""
-    c, c_lon = _cos_and_slope(nrm, q, x[b], x[b + 1], 1.0, 0.0)
-    _, c_lat = _cos_and_slope(nrm, q, x[b], x[b + 1], 0.0, 1.0)
-    h = math.hypot(c_lon, c_lat)
-    if h == 0.0:
+    g0, g1 = _unit_gradient(nrm, q, x, b)
+    if g0 == 0.0 and g1 == 0.0:
         return False
-    hc[b], hc[b + 1] = c_lon / h, c_lat / h
+    hc[b], hc[b + 1] = g0, g1
     return True
 
 
@@ -164,10 +177,8 @@ def onto_horizons(nrm, x, fk, hq):  # pragma: no cover - compiled
 @numba.njit(cache=True, inline="always")
 def _tangent(nrm, q, x, b):  # pragma: no cover - compiled
     """Unit direction in (lon, lat) along sub-sensor q's horizon at the source x[b]."""
-    _, c_lon = _cos_and_slope(nrm, q, x[b], x[b + 1], 1.0, 0.0)
-    _, c_lat = _cos_and_slope(nrm, q, x[b], x[b + 1], 0.0, 1.0)
-    h = math.hypot(c_lon, c_lat)
-    return (0.0, 0.0) if h == 0.0 else (-c_lat / h, c_lon / h)
+    g0, g1 = _unit_gradient(nrm, q, x, b)
+    return -g1, g0
 
 
 @numba.njit(cache=True)

@@ -130,13 +130,13 @@ def _normal_eq(jt, r, a, g):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step, hc):  # pragma: no cover - compiled
+def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step, hc, held):  # pragma: no cover
     """Damped, bounded Gauss–Newton step into ``step``; returns the predicted decrease.
 
     Fixed parameters (frozen, or an intensity at 0 whose gradient points
-    outwards) get a zero step, as in batch._lm_step.  A sphere source with a
-    nonzero unit vector (hc[b], hc[b + 1]) moves normal to it, along a horizon
-    (:func:`.horizons.along_horizons`).
+    outwards) get a zero step, as in batch._lm_step.  With ``held`` (sphere
+    horizons handled), a source with a nonzero unit vector (hc[b], hc[b + 1])
+    moves normal to it, along a horizon (:func:`.horizons.along_horizons`).
     """
     p = g.size
     top = 0.0
@@ -158,10 +158,10 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step, hc):  # pragma: no cove
             for j in range(p):
                 ad[i, j] = 0.0 if fx[j] else a[i, j]
             ad[i, i] = a[i, i] + lam * max(a[i, i], floor)
-    if d1 == 3:
+    if held:
         along_horizons(ad, gm, hc, fx)
     _solve_spd(ad, gm, step)
-    if d1 == 3:
+    if held:
         back_to_lonlat(step, gm, g, hc, fx)
     pred = 0.0
     for i in range(p):
@@ -267,7 +267,7 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
     chi2_old = _residual(kind, law, p, nrm, pos, x, s, jt, r, True)
     _normal_eq(jt, r, a, g)
     for it in range(max_iter):
-        pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step, hc)
+        pred = _damped_step(a, g, x, fk, lam, d1, ad, gm, fx, step, hc, held)
         _propose(kind, zfl, nrm, x, step, 1.0, xn, fk, hq, held)
         chi2_new = _residual(kind, law, p, nrm, pos, xn, s, jt2, r2, True)
         tiny = ftol * chi2_old + 1e-30

@@ -18,6 +18,7 @@ from ...model import Model
 from ..exact import enumerate_optimum
 from ..outcome import FitOutcome
 from .options import FastOptions
+from .refine import _improves
 
 __all__ = ["escalate"]
 
@@ -44,7 +45,7 @@ def escalate(model: Model, data: np.ndarray, out: FitOutcome, opts: FastOptions)
         return out
     ex = enumerate_optimum(model, data[rows], k).params
     chi2 = np.sum((data[rows] - model.response(ex)) ** 2, axis=-1)
-    better = chi2 < out.chi2[rows] * (1 - 1e-12)
+    better = _improves(chi2, out.chi2[rows])
     sel = rows[better]
     new_x, new_chi2 = x.copy(), out.chi2.copy()
     conv, stalled = out.converged.copy(), out.stalled.copy()

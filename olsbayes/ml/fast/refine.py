@@ -56,12 +56,17 @@ def _known(out: FitOutcome) -> np.ndarray:
     return np.where((out.converged & ~out.stalled)[:, None], out.x, np.nan)
 
 
+def _improves(new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """Where a chi^2 ``new`` beats ``old`` by more than rounding (what :func:`_merge` keeps)."""
+    return new < old * (1 - 1e-12)
+
+
 def _merge(out: FitOutcome, rows: np.ndarray, new: FitOutcome) -> FitOutcome:
     """Replace the fits ``rows`` of ``out`` by ``new`` where it is strictly better."""
     x, chi2 = out.x.copy(), out.chi2.copy()
     conv, nev, stalled = out.converged.copy(), out.n_evaluations.copy(), out.stalled.copy()
     nev[rows] += new.n_evaluations
-    better = new.chi2 < chi2[rows] * (1 - 1e-12)
+    better = _improves(new.chi2, chi2[rows])
     sel = rows[better]
     x[sel], chi2[sel], conv[sel] = new.x[better], new.chi2[better], new.converged[better]
     stalled[sel] = new.stalled[better]
@@ -178,7 +183,7 @@ def kink_polish(model: Model, data: np.ndarray, out: FitOutcome,
                 break
             new = refine_batch(model, data[rows], out.x[rows], max_iter=opts.max_iter,
                                kinks=True)
-            moved = rows[new.chi2 < out.chi2[rows] * (1 - 1e-12)]  # as _merge decides
+            moved = rows[_improves(new.chi2, out.chi2[rows])]
             out = _merge(out, rows, new)
             rows = moved  # a run from an unchanged fit would repeat the first
         return out

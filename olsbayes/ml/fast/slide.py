@@ -35,7 +35,7 @@ from ...model import Model
 from ..atoms import NEIGHBOUR
 from ..outcome import FitOutcome
 from .options import FastOptions
-from .refine import _known, refine_starts
+from .refine import _improves, _known, refine_starts
 from .search import _atom_views
 
 __all__ = ["slide", "relocations", "distinct_best"]
@@ -185,7 +185,7 @@ def slide(model: Model, data: np.ndarray, out: FitOutcome, pool: tuple[np.ndarra
     conv, stalled = out.converged.copy(), out.stalled.copy()
     nev = out.n_evaluations + np.bincount(owner, weights=res.n_evaluations,
                                           minlength=t).astype(np.int64)
-    better = res.chi2[best] < chi2 * (1 - 1e-12)
+    better = _improves(res.chi2[best], chi2)
     sel, src = np.flatnonzero(better), best[better]
     x[sel], chi2[sel], conv[sel], stalled[sel] = (res.x[src], res.chi2[src], res.converged[src],
                                                   res.stalled[src])
