@@ -19,6 +19,7 @@ A chunk gives the same numbers wherever it runs (its trials' seeds are fixed).
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import importlib.util
 import os
 from collections.abc import Callable
@@ -141,13 +142,30 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
     if not isinstance(scheduler, str) or not scheduler:
         raise InputError(f"scheduler must be an address such as 'tcp://host:8786'; "
                          f"got {_short(scheduler)}")
+    client = _connect(scheduler)
+    return _dask_backend(client, client.close)
+
+
+def _connect(scheduler: str) -> Any:
+    """A ``distributed.Client`` of the scheduler at ``scheduler`` (not the default client).
+
+    A client whose start fails (unreachable, or not an address: ``'host'`` without
+    a port, an unknown scheme) is closed here at once.  Left to the garbage
+    collector, it would wait twice its timeout when the process exits -- 40 s
+    after the error was reported -- and then print a traceback.
+    """
     from distributed import Client
 
+    client = Client.__new__(Client)  # held before __init__ runs, so a failed start is closed
     try:  # not the process's default client: a failed start must leave no global behind
-        client = Client(scheduler, timeout="20s", set_as_default=False)
-    except (OSError, ValueError, TypeError) as exc:  # unreachable, or not an address
-        raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
-    return _dask_backend(client, client.close)
+        client.__init__(scheduler, timeout="20s", set_as_default=False)
+    except BaseException as exc:
+        with contextlib.suppress(Exception):  # failed before it had a loop: nothing to close
+            client.close(timeout=1)
+        if isinstance(exc, (OSError, ValueError, TypeError, ImportError)):
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
+        raise
+    return client
 
 
 def _local_dask(n_workers: int) -> Backend:
