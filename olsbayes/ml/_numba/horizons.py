@@ -54,7 +54,7 @@ def ring_kink(nrm, x, step, jt, jt2, fk):  # pragma: no cover - compiled
     return best, src
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _cos_and_gradient(nrm, q, lon, lat):  # pragma: no cover - compiled
     """n_q . u(lon, lat) and its derivatives over lon and lat."""
     cla, sla, clo, slo = math.cos(lat), math.sin(lat), math.cos(lon), math.sin(lon)
@@ -64,14 +64,14 @@ def _cos_and_gradient(nrm, q, lon, lat):  # pragma: no cover - compiled
     return c, c_lon, c_lat
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _cos_and_slope(nrm, q, lon, lat, dlon, dlat):  # pragma: no cover - compiled
     """n_q . u(lon, lat) and its derivative along the direction (dlon, dlat)."""
     c, c_lon, c_lat = _cos_and_gradient(nrm, q, lon, lat)
     return c, c_lon * dlon + c_lat * dlat
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _unit_gradient(nrm, q, x, b):  # pragma: no cover - compiled
     """Unit gradient of n_q . u over (lon, lat) at the source x[b]; (0, 0) if none."""
     _, c_lon, c_lat = _cos_and_gradient(nrm, q, x[b], x[b + 1])
@@ -79,7 +79,7 @@ def _unit_gradient(nrm, q, x, b):  # pragma: no cover - compiled
     return (0.0, 0.0) if h == 0.0 else (c_lon / h, c_lat / h)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _unit(lon, lat):  # pragma: no cover - compiled
     cla = math.cos(lat)
     return cla * math.cos(lon), cla * math.sin(lon), math.sin(lat)
@@ -126,7 +126,7 @@ def sphere_kink(nrm, x, step, jt, jt2, fk):  # pragma: no cover - compiled
     return best, src, sub
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _same_circle(nrm, q, r):  # pragma: no cover - compiled
     """Whether sub-sensors q and r share one horizon (parallel or opposite normals)."""
     dot = nrm[0, q] * nrm[0, r] + nrm[1, q] * nrm[1, r] + nrm[2, q] * nrm[2, r]
@@ -143,7 +143,7 @@ def horizon_normal(nrm, q, x, b, hc):  # pragma: no cover - compiled
     return True
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _onto(nrm, q, x, b):  # pragma: no cover - compiled
     """The source at x[b] put onto sub-sensor q's horizon: u - (n . u) n, normalised.
 
@@ -174,7 +174,7 @@ def onto_horizons(nrm, x, fk, hq):  # pragma: no cover - compiled
             _onto(nrm, hq[k], x, b)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _tangent(nrm, q, x, b):  # pragma: no cover - compiled
     """Unit direction in (lon, lat) along sub-sensor q's horizon at the source x[b]."""
     g0, g1 = _unit_gradient(nrm, q, x, b)
@@ -190,7 +190,7 @@ def renew_normals(nrm, x, fk, hq, hc):  # pragma: no cover - compiled
             horizon_normal(nrm, hq[k], x, b, hc)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def along_horizons(ad, gm, hc, fx):  # pragma: no cover - compiled
     """Restrict the damped system (ad, gm) of sphere sources held on a horizon.
 
@@ -215,7 +215,7 @@ def along_horizons(ad, gm, hc, fx):  # pragma: no cover - compiled
         gm[b], gm[b + 1] = v0 * gm[b] + v1 * gm[b + 1], 0.0
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def back_to_lonlat(step, gm, g, hc, fx):  # pragma: no cover - compiled
     """Undo :func:`along_horizons`: step (lon, lat) = t v, and gm back to g there."""
     for b in range(0, gm.size, 3):

@@ -1,7 +1,7 @@
 """Small dense solves for the compiled LM (:mod:`.lm`) and search (:mod:`.search`) kernels.
 
 Pivoted LU and Cholesky (with the LU as fallback) on P x P systems, P <= ~16,
-written out so that numba inlines them into the callers' loops.
+written out for the small sizes of these kernels.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def _solve(m, b, out):  # pragma: no cover - compiled
         out[i] = acc / m[i, i]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _solve_spd(m, b, out):  # pragma: no cover - compiled
     """out = m^-1 b for a symmetric positive definite m by Cholesky (m overwritten).
 

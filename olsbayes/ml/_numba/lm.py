@@ -71,7 +71,7 @@ def supports(model: Model) -> bool:
     return model.kind in KINDS and law_code(model) is not None
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _over_pole(x, b):  # pragma: no cover - compiled
     """(lon, lat) at x[b], x[b + 1] with |lat| > pi/2 carried over the pole (same direction)."""
     lat = x[b + 1]
@@ -84,7 +84,7 @@ def _over_pole(x, b):  # pragma: no cover - compiled
     x[b + 1] = lat
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _project(kind, zfl, x):  # pragma: no cover - compiled
     """Feasible set in place: intensity >= 0, |lat| <= pi/2 (over the pole), z >= zfl."""
     d1 = kind + 2
@@ -98,7 +98,7 @@ def _project(kind, zfl, x):  # pragma: no cover - compiled
             x[b + 2] = zfl
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _propose(kind, zfl, nrm, x, step, scale, xn, fk, hq, held):  # pragma: no cover - compiled
     """xn = x + scale * step, made feasible, held sphere sources put back on their horizons."""
     for i in range(x.size):
@@ -129,7 +129,7 @@ def _normal_eq(jt, r, a, g):  # pragma: no cover - compiled
             a[j, i] = acc
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step, hc, held):  # pragma: no cover
     """Damped, bounded Gauss–Newton step into ``step``; returns the predicted decrease.
 
@@ -215,7 +215,7 @@ def _known_cell(jt, known_vis, known_ok, n_known):  # pragma: no cover - compile
     return -1
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _near(known, n_known, x, tol):  # pragma: no cover - compiled
     """Whether x is within tol (max norm) of one of the rows known[:n_known]."""
     for j in range(n_known):

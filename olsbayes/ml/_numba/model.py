@@ -44,7 +44,7 @@ def _law(c, law, p):  # pragma: no cover - compiled
     return _power(cp, p), p * _power(cp, p - 1.0)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _eval_ring_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
     """:func:`_eval_far` for the planar ring and the clipped cosine (branch-free loops)."""
     for k in range(x.size // 2):
@@ -61,7 +61,7 @@ def _eval_ring_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
                 jt[ig, n] = max(u0 * nrm[0, n] + u1 * nrm[1, n], 0.0)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _eval_far(kind, law, p, nrm, x, jt, want_jac):  # pragma: no cover - compiled
     """Rows of jt (P, N): g(c) per source, and with want_jac the location rows."""
     d1 = 2 if kind == 0 else 3
@@ -94,7 +94,7 @@ def _eval_far(kind, law, p, nrm, x, jt, want_jac):  # pragma: no cover - compile
                                         + cla * nrm[2, n])
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _eval_near(law, p, nrm, pos, x, jt, want_jac):  # pragma: no cover - compiled
     """As :func:`_eval_far` for near sources (positions): g(c) / r^2 and its gradient."""
     for k in range(x.size // 4):
@@ -115,7 +115,7 @@ def _eval_near(law, p, nrm, pos, x, jt, want_jac):  # pragma: no cover - compile
                 jt[b + 2, n] = inten * (e * (nrm[2, n] / r - cr * d2) - f * d2)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _residual(kind, law, p, nrm, pos, x, s, jt, r, want_jac):  # pragma: no cover
     """Fill jt (intensity rows, + location rows if want_jac) and r = s - response; chi^2."""
     if kind == 2:
@@ -134,9 +134,9 @@ def _residual(kind, law, p, nrm, pos, x, s, jt, r, want_jac):  # pragma: no cove
     return _sumsq(r)
 
 
-@numba.njit(cache=True, fastmath={"reassoc"}, inline="always")
+@numba.njit(cache=True)
 def _sumsq(r):  # pragma: no cover - compiled
-    """Sum of squares (SIMD partial sums)."""
+    """Sum of squares, added in order."""
     acc = 0.0
     for n in range(r.size):
         acc += r[n] * r[n]
