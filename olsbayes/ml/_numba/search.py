@@ -136,8 +136,9 @@ def _pursue_and_alternate(g, gram, gnorm2, gs, s, k, max_sweeps, w, sc):  # prag
     sc (K, M) ends as each source's scores given the others at the returned atoms.
     """
     idx = np.zeros(k, np.int64)
+    none = np.int64(-1)  # a variable, not the literal: one compiled _given_others
     for step in range(k):
-        _given_others(g, gram, gnorm2, gs, s, idx[:step], -1, w, sc[0])
+        _given_others(g, gram, gnorm2, gs, s, idx[:step], none, w, sc[0])
         idx[step] = _argmax(sc[0])
     if k == 1:
         return idx
