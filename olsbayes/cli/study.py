@@ -113,8 +113,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--out", type=Path, default=None, help="NetCDF result file")
     p.add_argument("--resume", action="store_true",
                    help="continue the study in the [study] checkpoint file")
-    p.add_argument("--quiet", "--no-progress", dest="no_progress", action="store_true",
-                   help="hide the progress bar")
+    p.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                   help="no progress bar or status lines on stderr (warnings and errors "
+                        "are still printed)")
     add_json_arg(p)
     p.set_defaults(run=run)
 
@@ -201,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         ds = run_study(cfg["trial"], cfg["grid"], s["n_trials"], fixed=cfg["fixed"],
                        executor=executor, workers=workers, scheduler=scheduler,
                        checkpoint=ckpt, out=out, rng=s.get("seed"),
-                       chunk_size=s.get("chunk_size"), progress=not args.no_progress,
+                       chunk_size=s.get("chunk_size"), progress=not args.quiet,
                        max_memory_gb=s.get("max_memory_gb"))
     except InputError as exc:
         raise ConfigError(f"{args.config}: {exc}") from None

@@ -22,10 +22,12 @@ import concurrent.futures as cf
 import contextlib
 import importlib.util
 import os
+import threading
 from collections.abc import Callable
 from multiprocessing import forkserver
 from typing import Any
 
+from .._notice import notice
 from .._validation import _short, integer
 from ..errors import InputError
 from ._pool import LocalPool, forkserver_context
@@ -146,16 +148,22 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
     return _dask_backend(client, client.close)
 
 
-def _connect(scheduler: str) -> Any:
+def _connect(scheduler: str, *, notice_after: float = 2.0) -> Any:
     """A ``distributed.Client`` of the scheduler at ``scheduler`` (not the default client).
 
-    A client whose start fails (unreachable, or not an address: ``'host'`` without
-    a port, an unknown scheme) is closed here at once.  Left to the garbage
-    collector, it would wait twice its timeout when the process exits -- 40 s
-    after the error was reported -- and then print a traceback.
+    Connecting gives up after 20 s; a connection still pending after
+    ``notice_after`` seconds says so in one line on stderr.  A client whose start
+    fails (unreachable, or not an address: ``'host'`` without a port, an unknown
+    scheme) is closed here at once.  Left to the garbage collector, it would wait
+    twice its timeout when the process exits -- 40 s after the error was reported --
+    and then print a traceback.
     """
     from distributed import Client
 
+    waiting = threading.Timer(notice_after, notice, (
+        f"connecting to the Dask scheduler at {scheduler!r} (gives up after 20 s) ...",))
+    waiting.daemon = True
+    waiting.start()
     client = Client.__new__(Client)  # held before __init__ runs, so a failed start is closed
     try:  # not the process's default client: a failed start must leave no global behind
         client.__init__(scheduler, timeout="20s", set_as_default=False)
@@ -165,6 +173,8 @@ def _connect(scheduler: str) -> Any:
         if isinstance(exc, (OSError, ValueError, TypeError, ImportError)):
             raise InputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
         raise
+    finally:
+        waiting.cancel()
     return client
 
 

@@ -77,3 +77,26 @@ def test_building_a_large_search_says_so_unless_quiet(monkeypatch, capsys):
     assert "olsbayes: building the search" in capsys.readouterr().err
     notice("still heard")
     assert capsys.readouterr().err == "olsbayes: still heard\n"
+
+
+def test_study_quiet_silences_status_lines_too(tmp_path, capsys, monkeypatch):
+    """``study --quiet`` (alias ``--no-progress``) hides the status lines as every other
+    command's ``--quiet`` does, e.g. the one of a slow Dask scheduler connection."""
+    from olsbayes._notice import notice
+    from olsbayes.errors import InputError
+    from olsbayes.studies import executors
+
+    def slow(scheduler, **kwargs):
+        notice(f"connecting to the Dask scheduler at {scheduler!r} ...")
+        raise InputError("cannot reach the Dask scheduler")
+
+    monkeypatch.setattr(executors, "_connect", slow)
+    cfg = tmp_path / "s.toml"
+    cfg.write_text(f'[study]\ntrial = "noise_check"\nn_trials = 2\nout = "{tmp_path / "s.nc"}"\n'
+                   '\n[fixed]\nn_sensors = 8\n')
+    for flags, said in (([], True), (["--quiet"], False), (["--no-progress"], False)):
+        assert main(["study", str(cfg), "--scheduler", "tcp://h:1", *flags]) == 2
+        err = capsys.readouterr().err
+        assert ("connecting to the Dask scheduler" in err) is said, (flags, err)
+        assert "cannot reach the Dask scheduler" in err
+    assert not (tmp_path / "s.nc").exists()

@@ -215,3 +215,32 @@ def test_a_study_alone_in_its_process_takes_the_chunks_of_every_worker(monkeypat
     assert procs.identical(ref)
     # 16 trials for 2 workers are 16 chunks of 1; alone, the process runs them in pairs
     assert [len(rec.trials) for rec in read_chunks(ckpt)] == [2] * 8
+
+
+def test_a_slow_scheduler_connection_says_so_once_and_a_failed_one_is_closed(monkeypatch, capsys):
+    distributed = pytest.importorskip("distributed")
+    from olsbayes.errors import InputError
+
+    closed = []
+
+    class Unreachable:  # connects for 0.3 s, then times out
+        def __init__(self, address, **kwargs):
+            time.sleep(0.3)
+            raise OSError(f"Timed out trying to connect to {address}")
+
+        def close(self, timeout=None):
+            closed.append(timeout)
+
+    monkeypatch.setattr(distributed, "Client", Unreachable)
+    with pytest.raises(InputError, match="cannot reach the Dask scheduler at 'tcp://h:1': Timed"):
+        executors._connect("tcp://h:1", notice_after=0.05)
+    err = capsys.readouterr().err
+    assert err == ("olsbayes: connecting to the Dask scheduler at 'tcp://h:1' "
+                   "(gives up after 20 s) ...\n")
+    assert closed == [1]  # the half-started client, closed before the error is raised
+    monkeypatch.undo()
+    # one that fails at once (no port) says nothing but the error
+    with pytest.raises(InputError, match="missing port number"):
+        executors._connect("h", notice_after=0.2)
+    time.sleep(0.3)
+    assert capsys.readouterr().err == ""
