@@ -148,25 +148,25 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
     return _dask_backend(client, client.close)
 
 
-def _connect(scheduler: str, *, notice_after: float = 2.0) -> Any:
+def _connect(scheduler: str, *, timeout: int = 20, notice_after: float = 2.0) -> Any:
     """A ``distributed.Client`` of the scheduler at ``scheduler`` (not the default client).
 
-    Connecting gives up after 20 s; a connection still pending after
-    ``notice_after`` seconds says so in one line on stderr.  A client whose start
-    fails (unreachable, or not an address: ``'host'`` without a port, an unknown
-    scheme) is closed here at once.  Left to the garbage collector, it would wait
-    twice its timeout when the process exits -- 40 s after the error was reported --
-    and then print a traceback.
+    Connecting gives up after ``timeout`` seconds; a connection still pending
+    after ``notice_after`` seconds says so in one line on stderr.  A client whose
+    start fails (unreachable, or not an address: ``'host'`` without a port, an
+    unknown scheme) is closed here at once.  Left to the garbage collector, it
+    would wait twice its timeout when the process exits -- 40 s after the error
+    was reported, by default -- and then print a traceback.
     """
     from distributed import Client
 
     waiting = threading.Timer(notice_after, notice, (
-        f"connecting to the Dask scheduler at {scheduler!r} (gives up after 20 s) ...",))
+        f"connecting to the Dask scheduler at {scheduler!r} (gives up after {timeout} s) ...",))
     waiting.daemon = True
     waiting.start()
     client = Client.__new__(Client)  # held before __init__ runs, so a failed start is closed
     try:  # not the process's default client: a failed start must leave no global behind
-        client.__init__(scheduler, timeout="20s", set_as_default=False)
+        client.__init__(scheduler, timeout=f"{timeout}s", set_as_default=False)
     except BaseException as exc:
         with contextlib.suppress(Exception):  # failed before it had a loop: nothing to close
             client.close(timeout=1)
