@@ -114,7 +114,9 @@ def prepare() -> None:
 
         def on_start(self, ev) -> None:
             dispatcher = ev.data["dispatcher"]
-            if not getattr(dispatcher.py_func, "__module__", "").startswith("olsbayes."):
+            # another library's function may have no module (built by exec): not ours
+            module = getattr(getattr(dispatcher, "py_func", None), "__module__", None)
+            if not isinstance(module, str) or not module.startswith("olsbayes."):
                 return
             if not saving:  # nowhere to write the machine code
                 dispatcher._cache.disable()

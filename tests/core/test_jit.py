@@ -98,3 +98,23 @@ def test_no_writable_folder_at_all_fits_with_one_warning_and_no_traceback(tmp_pa
     assert out["how"] == "none"
     assert abs(out["theta"] - 0.3) < 1e-6
     assert len(out["warnings"]) == 1 and "NUMBA_CACHE_DIR" in out["warnings"][0]
+
+
+def test_other_numba_functions_compile_beside_the_notice(tmp_path):
+    """The compile notice listens to every numba compile in the process; a function
+    without a module (built by exec) or of another package compiles undisturbed."""
+    script = textwrap.dedent("""
+        import olsbayes, olsbayes._jit as jit
+        jit.prepare()  # the listener is registered
+        import numba
+        namespace = {}
+        exec("def f(x):\\n    return 2 * x", namespace)  # no __name__: __module__ is None
+        assert namespace["f"].__module__ is None
+        print(numba.njit(namespace["f"])(21), numba.njit(lambda x: x + 1)(41))
+    """)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["42", "42"]
+    assert "compiling numerical kernels" not in proc.stderr  # not a package kernel
