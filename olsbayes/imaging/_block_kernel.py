@@ -23,25 +23,59 @@ __all__ = ["trajectories_compiled"]
 
 _TINY_T = 1e-12  # as olsbayes.imaging.truncated._TINY_T
 _TAU = 2.0 * math.pi
+_SLACK = 1e-9  # relative width added to the wall screen of _first_wall
+_SURE = 1.0 + 1e-9  # widens the travel-time bound of _first_wall past rounding
 
 
 @numba.njit(cache=True)
-def _first_wall(a, v, h_lo, h_hi):  # pragma: no cover - compiled
-    """Earliest wall crossing: (t, coordinate, is_upper); t = inf when none."""
+def _hit(a, v, h, lower):  # pragma: no cover - compiled
+    """Time of the next crossing of level h by ``a cos t + v sin t`` (going down if lower)."""
+    r = math.hypot(a, v)
+    c = h / r if r > 0.0 else math.inf
+    if not abs(c) < 1.0:
+        return math.inf
+    phi = math.atan2(v, a)
+    return (phi + math.acos(c)) % _TAU if lower else (phi - math.acos(c)) % _TAU
+
+
+@numba.njit(cache=True)
+def _first_wall(a, v, h_lo, h_hi, left):  # pragma: no cover - compiled
+    """Earliest wall crossing: (t, coordinate, is_upper); t = inf when none before ``left``.
+
+    The crossing time of a coordinate (hypot, atan2, acos: most of a bounce's cost)
+    is solved only where it can beat both ``left`` and the earliest so far:
+
+    * over ``[0, left]`` with ``left < pi``, ``a cos t + v sin t`` turns at most
+      once, so its range is that of its two end values, widened to the amplitude
+      ``-r`` (or ``r``) where its velocity turns from down to up (up to down)
+      inside; a coordinate whose range misses a wall cannot reach it in time;
+    * its speed never exceeds ``r <= |a| + |v|``, so a wall ``d`` away takes at
+      least ``d / (|a| + |v|)``.
+
+    Both screens are widened past rounding, so every crossing that could be the
+    earliest is solved by the same formula in the same order: the result is, to
+    the bit, that of solving every coordinate.
+    """
     best, kb, upb = math.inf, -1, False
+    cl, sl = math.cos(left), math.sin(left)
+    short = left < math.pi  # at most one turn: the end values bound the range
     for j in range(a.shape[0]):
-        r = math.hypot(a[j], v[j])
-        if r == 0.0:
-            continue
-        phi = math.atan2(v[j], a[j])
-        c = h_lo[j] / r
-        if abs(c) < 1.0:
-            t = (phi + math.acos(c)) % _TAU
+        aj, vj = a[j], v[j]
+        end = aj * cl + vj * sl
+        low, high = min(aj, end), max(aj, end)
+        slope = vj * cl - aj * sl  # velocity at t = left
+        if vj < 0.0 < slope or not short:
+            low = -math.hypot(aj, vj)
+        if slope < 0.0 < vj or not short:
+            high = math.hypot(aj, vj)
+        speed = abs(aj) + abs(vj)  # bounds the amplitude r, hence the speed
+        slack = _SLACK * speed
+        if low <= h_lo[j] + slack and abs(aj - h_lo[j]) < best * speed * _SURE:
+            t = _hit(aj, vj, h_lo[j], True)
             if _TINY_T <= t < best:
                 best, kb, upb = t, j, False
-        c = h_hi[j] / r
-        if abs(c) < 1.0:
-            t = (phi - math.acos(c)) % _TAU
+        if high >= h_hi[j] - slack and abs(h_hi[j] - aj) < best * speed * _SURE:
+            t = _hit(aj, vj, h_hi[j], False)
             if _TINY_T <= t < best:
                 best, kb, upb = t, j, True
     return best, kb, upb
@@ -66,7 +100,7 @@ def trajectories_compiled(  # pragma: no cover - compiled
         left = t_total
         nb = 0
         while True:
-            t, k, up = _first_wall(a, vel, h_lo, h_hi)
+            t, k, up = _first_wall(a, vel, h_lo, h_hi, left)
             if t >= left:
                 ct, st = math.cos(left), math.sin(left)
                 for j in range(dim):

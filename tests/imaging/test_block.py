@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -94,6 +95,52 @@ def test_the_compiled_trajectory_follows_the_numpy_one():
     assert np.array_equal(n_ref, n_got) and n_ref.min() > 0
     np.testing.assert_allclose(got, ref, atol=1e-12)
     assert np.all((got >= 0) & (got <= 1))
+
+
+def _every_wall(a, v, h_lo, h_hi):
+    """The unscreened scan: every coordinate's crossing times solved, earliest kept."""
+    best, kb, upb = math.inf, -1, False
+    for j in range(a.shape[0]):
+        r = math.hypot(a[j], v[j])
+        if r == 0.0:
+            continue
+        phi = math.atan2(v[j], a[j])
+        for h, up in ((h_lo[j], False), (h_hi[j], True)):
+            c = h / r
+            if abs(c) < 1.0:
+                t = (phi - math.acos(c) if up else phi + math.acos(c)) % (2 * math.pi)
+                if 1e-12 <= t < best:
+                    best, kb, upb = t, j, up
+    return best, kb, upb
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_screened_wall_search_finds_what_solving_every_coordinate_finds(seed):
+    """The compiled search solves only the coordinates that can reach a wall first;
+    on states with coordinates on a wall, beside one and far from both, with an
+    open upper side and with times left up to a full turn, it picks the same
+    crossing as solving every coordinate (the bounce a trajectory takes)."""
+    from olsbayes.imaging._block_kernel import _first_wall
+
+    rng = np.random.default_rng(seed)
+    same = 0
+    for _ in range(400):
+        dim = int(rng.integers(1, 40))
+        a, v = rng.standard_normal(dim), rng.standard_normal(dim)
+        h_lo = a - rng.exponential(rng.choice([1e-9, 0.1, 1.0, 3.0]), dim)
+        h_hi = a + rng.exponential(rng.choice([1e-9, 0.1, 1.0, 3.0]), dim)
+        on = rng.random(dim) < 0.2  # just bounced: on the lower wall, moving up
+        h_lo[on], v[on] = a[on], np.abs(v[on])
+        h_hi[rng.random(dim) < 0.2] = np.inf
+        left = float(rng.choice([rng.uniform(0, np.pi / 2), rng.uniform(0, 2 * np.pi)]))
+        t_ref, k_ref, up_ref = _every_wall(a, v, h_lo, h_hi)
+        t, k, up = _first_wall(a, v, h_lo, h_hi, left)
+        if t_ref < left:  # a bounce: the very crossing
+            assert (k, up) == (k_ref, up_ref) and t == pytest.approx(t_ref, rel=1e-14)
+            same += 1
+        else:  # no bounce before the trajectory ends
+            assert t >= left
+    assert same > 100  # most states bounce
 
 
 def test_loose_block_picks_the_intensities_with_a_wide_pilot_spread():
