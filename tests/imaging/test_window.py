@@ -50,6 +50,42 @@ def test_compiled_truncnorm_is_the_same_inversion(m, s, lo, hi):
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-8 * s)
 
 
+@pytest.mark.parametrize("where,lo,hi,tol", [
+    ("centre", np.log(0.075), np.log(0.925), 2e-15),
+    ("lower tail, r <= 5", -25.0, np.log(0.075), 2e-15),
+    ("lower tail, r > 5", np.log(1e-300), -25.0, 2e-15),
+    ("upper tail", np.log1p(-0.075), -1e-16, 2e-15),
+    ("beyond 1e-300 (Newton)", -5e4, np.log(1e-300), 1e-12),
+])
+def test_the_log_space_normal_quantile_matches_scipy(where, lo, hi, tol):
+    """z with log Phi(z) = log p, as scipy's ndtri_exp gives it: AS 241 to rounding
+    where it applies, Newton's method (stopped at 1e-13 in z) beyond."""
+    from scipy.special import ndtri_exp
+
+    from olsbayes.imaging._window_kernel import _ndtri_exp
+
+    logp = np.concatenate([np.linspace(lo, hi, 2000), -np.geomspace(-hi, -lo, 2000)])
+    got = np.array([_ndtri_exp(v) for v in logp])
+    ref = ndtri_exp(logp)
+    np.testing.assert_array_less(np.abs(got - ref), tol * np.maximum(1.0, np.abs(ref)))
+
+
+@pytest.mark.parametrize("n_chains", [1, 3, 4, 5, 9])
+def test_the_chains_dot_products_are_each_chains_own_sum(n_chains):
+    """Chains' residuals dotted four at a time: each sum, to the bit, as its own loop."""
+    from olsbayes.imaging._window_kernel import _dots
+
+    rng = np.random.default_rng(n_chains)
+    r, row = rng.standard_normal((n_chains, 301)), rng.standard_normal(301)
+    h = np.empty(n_chains)
+    _dots(r, row, h)
+    for c in range(n_chains):
+        total = 0.0
+        for a, b in zip(r[c].tolist(), row.tolist()):
+            total += a * b
+        assert h[c] == total
+
+
 @pytest.mark.parametrize("h,lo,hi", [(3.0, 0.0, 1.0), (-40.0, -0.5, 0.25), (1e-14, 0.0, 2.0)])
 def test_flat_lines_draw_the_tilted_uniform(h, lo, hi):
     # prec * width^2 < 1e-8: t ~ exp(h t) on [lo, hi], inverse CDF in closed form
