@@ -12,9 +12,10 @@ the first kept draw, so the kept chains run one fixed, exact kernel.
 With a fixed ``n_samples`` exactly that many draws per chain are kept.
 Without one the chains keep sampling in blocks -- 100 draws, then growing by
 half each time -- until every intensity has rank-normalised split R-hat
-``<= rhat_max`` and bulk and tail ESS ``>= ess_min`` (Vehtari et al. 2021,
-computed by arviz), or until ``max_samples`` draws per chain; the result says
-which (:attr:`BoxRun.converged`).
+``<= rhat_max`` and bulk and tail ESS ``>= ess_min`` (Vehtari et al. 2021;
+ArviZ's values, from :mod:`olsbayes._mcmc_diagnostics`), or until
+``max_samples`` draws per chain; the result says which
+(:attr:`BoxRun.converged`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._mcmc_diagnostics import ess_bulk, ess_tail, rank_rhat
 from .block import block_move, block_step, loose_block
 from .sparse import gibbs_intensities
 from .window import WindowMoves
@@ -83,23 +85,18 @@ class BoxRun:
 def chain_diagnostics(draws: np.ndarray) -> dict:
     """Worst rank-normalised split R-hat and smallest bulk / tail ESS of (C, S, K) draws.
 
-    Intensities constant in every chain (no spread to measure) are left out.
+    ArviZ's values to rounding (:mod:`olsbayes._mcmc_diagnostics`, every intensity
+    at once).  Intensities constant in every chain (no spread to measure) are
+    left out of the R-hat.
     """
-    from ..posterior._arviz import _known_shapes, import_arviz
-
-    az = import_arviz()
-    with _known_shapes():
-        ds = az.convert_to_dataset(np.asarray(draws, dtype=float))
-    rhat = np.asarray(az.rhat(ds, method="rank")["x"].values, dtype=float)
-    bulk = np.asarray(az.ess(ds, method="bulk")["x"].values, dtype=float)
-    tail = np.asarray(az.ess(ds, method="tail")["x"].values, dtype=float)
+    draws = np.asarray(draws, dtype=float)
 
     def worst(v, pick):
         v = v[np.isfinite(v)]
         return float(pick(v)) if v.size else float("nan")
 
-    return {"rhat": worst(rhat, np.max), "ess_bulk": worst(bulk, np.min),
-            "ess_tail": worst(tail, np.min)}
+    return {"rhat": worst(rank_rhat(draws), np.max), "ess_bulk": worst(ess_bulk(draws), np.min),
+            "ess_tail": worst(ess_tail(draws), np.min)}
 
 
 def _met(diag: dict, rule: ConvergenceRule) -> bool:
