@@ -142,7 +142,7 @@ def ess_bulk(x: np.ndarray) -> np.ndarray:
 
 
 def ess_tail(x: np.ndarray) -> np.ndarray:
-    """Tail ESS (K,) of draws (C, S, K): the smaller ESS of ``x <= q`` at q = 5 and 95 %."""
+    """Tail ESS (K,) of draws (C, S, K): the smaller ESS of ``x <= q``, q at 5 % and 95 %."""
     x = np.asarray(x, dtype=float)
     if x.shape[1] < 4:
         return np.full(x.shape[2], np.nan)
