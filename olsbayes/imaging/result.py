@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._mcmc_diagnostics import ess_bulk
 from .._store import load_result, save_result, storable
 from .binary import BinaryMap
 from .design import Design
@@ -160,19 +161,15 @@ class ImageResult:
     def ess(self) -> float:
         """Smallest rank-normalised bulk effective sample size over the intensities.
 
-        Computed by arviz from ``samples`` (all chains); NaN without draws.  With
-        ``rhat`` it tells whether the sd and intervals can be trusted (targets:
-        R-hat <= 1.01, ESS >= 400).
+        ArviZ's value, to rounding, from ``samples`` (all chains;
+        :mod:`olsbayes._mcmc_diagnostics`); NaN without draws.  With ``rhat`` it
+        tells whether the sd and intervals can be trusted (targets: R-hat <= 1.01,
+        ESS >= 400).
         """
         if self.samples is None or self.samples.shape[1] < 4:
             return float("nan")
-        from ..posterior._arviz import _known_shapes, import_arviz
-
-        az = import_arviz()
-        with _known_shapes():
-            ds = az.convert_to_dataset(np.asarray(self.samples, dtype=float))
-        ess = np.asarray(az.ess(ds, method="bulk")["x"].values, dtype=float)
-        ess = ess[np.isfinite(ess)]  # a column constant in every chain has none
+        ess = ess_bulk(np.asarray(self.samples, dtype=float))
+        ess = ess[np.isfinite(ess)]
         return float(ess.min()) if ess.size else float("nan")
 
     def covers(self, truth: np.ndarray) -> np.ndarray:
