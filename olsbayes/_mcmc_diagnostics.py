@@ -26,7 +26,7 @@ import numpy as np
 from scipy.fft import next_fast_len
 from scipy.special import ndtri
 
-__all__ = ["rank_rhat", "ess_bulk", "ess_tail", "split_chains", "normal_scores"]
+__all__ = ["rank_rhat", "ess_bulk", "ess_tail", "split_chains", "normal_scores", "split_rhat"]
 
 _RESOLUTION = np.finfo(float).resolution  # ArviZ's test for constant draws
 
@@ -57,8 +57,8 @@ def normal_scores(x: np.ndarray) -> np.ndarray:
     return scores.T.reshape(m, n, k)
 
 
-def _split_rhat(z: np.ndarray) -> np.ndarray:
-    """Split R-hat (K,) of split chains z (M, n, K)."""
+def split_rhat(z: np.ndarray) -> np.ndarray:
+    """Split R-hat (K,) of split chains z (M, n, K) (of their normal scores, for rank R-hat)."""
     n = z.shape[1]
     between = n * np.var(z.mean(axis=1), axis=0, ddof=1)
     within = np.mean(np.var(z, axis=1, ddof=1), axis=0)
@@ -77,9 +77,9 @@ def rank_rhat(x: np.ndarray) -> np.ndarray:
     if x.shape[0] < 2 or x.shape[1] < 4:
         return np.full(x.shape[2], np.nan)
     split = split_chains(np.nan_to_num(x))
-    bulk = _split_rhat(normal_scores(split))
+    bulk = split_rhat(normal_scores(split))
     folded = np.abs(split - np.median(split.reshape(-1, split.shape[2]), axis=0))
-    tail = _split_rhat(normal_scores(folded))
+    tail = split_rhat(normal_scores(folded))
     with np.errstate(invalid="ignore"):  # Python's max(bulk, tail), as ArviZ takes it
         return _nan_where_invalid(np.where(tail > bulk, tail, bulk), x, 2)
 
@@ -112,10 +112,10 @@ def _ess(z: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         rho = 1.0 - (mean_var - acov.mean(axis=0)) / var_plus  # (n, K)
     rho[0] = 1.0
-    pairs = (n - 1) // 2 + 1 if n >= 2 else 1
-    padded = np.zeros((2 * pairs + 2, k))
+    pairs = (n + 1) // 2  # (rho[2m], rho[2m + 1]), the last padded with a zero lag
+    padded = np.zeros((2 * pairs, k))
     padded[:n] = rho
-    sums = padded[0:2 * pairs:2] + padded[1:2 * pairs:2]  # (pairs, K)
+    sums = padded[0::2] + padded[1::2]  # (pairs, K)
     lag = np.arange(1, pairs)[:, None]
     go = (2 * lag - 1 < n - 3) & (sums[:-1] > 0.0)  # pair m computed after pair m - 1
     taken = np.logical_and.accumulate(go, axis=0).sum(axis=0)  # M, pairs 1..M computed
@@ -156,11 +156,12 @@ def ess_tail(x: np.ndarray) -> np.ndarray:
 def _type7(ordered: np.ndarray, p: float) -> np.ndarray:
     """The p-quantile (K,) of each column of ``ordered`` (n, K), sorted: R's type 7.
 
-    In the very operations of ``scipy.stats.mstats.mquantiles(alphap=1, betap=1)``,
-    ArviZ's quantile, so that the tail indicators ``x <= q`` are ArviZ's.
+    In the operations of ``scipy.stats.mstats.mquantiles(alphap=1, betap=1)``,
+    ArviZ's quantile (numpy's linear quantile differs in the last bit, which flips
+    some tail indicators ``x <= q``).
     """
     n = ordered.shape[0]
-    aleph = n * p + (1.0 + p * (1.0 - 1.0 - 1.0))
+    aleph = n * p + (1.0 - p)
     k = int(np.floor(min(max(aleph, 1), n - 1)))
     gamma = min(max(aleph - k, 0.0), 1.0)
     return (1.0 - gamma) * ordered[k - 1] + gamma * ordered[k]

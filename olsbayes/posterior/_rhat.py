@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtri
 
+from .._mcmc_diagnostics import split_rhat
 from ..circular import circular_mean, wrap_angle
 from ..priors import ScenePrior
 from ._labels import relabel
@@ -76,17 +77,9 @@ def _scores(split: np.ndarray) -> np.ndarray:
     return np.repeat(run_score, lengths).reshape(split.shape)
 
 
-def _split_rhat(z: np.ndarray) -> float:
-    """Split R-hat of normal scores z (2 chains, half)."""
-    n = z.shape[1]
-    between = n * np.var(z.mean(axis=1), ddof=1)
-    within = np.mean(np.var(z, axis=1, ddof=1))
-    return float(np.sqrt((between / within + n - 1) / n))
-
-
 def _split_rhat_of_scores(split: np.ndarray) -> float:
     """Split R-hat of (2 chains, half) draws after their normal-score transform."""
-    return _split_rhat(_scores(split))
+    return float(split_rhat(_scores(split)[:, :, None])[0])
 
 
 def rank_rhat(draws: np.ndarray, bound: float = np.inf) -> float:
