@@ -39,8 +39,14 @@ from .priors import (
     with_data_bound,
 )
 from .result import ImageResult, hpd_interval, split_rhat
-from .sparse import GibbsSamples, gibbs_intensities
-from .truncated import TruncatedSamples, sample_truncated_gaussian, truncnorm_1d
+from .sparse import GibbsSamples, SweepMoves, gibbs_intensities
+from .truncated import (
+    Dynamics,
+    Ridge,
+    TruncatedSamples,
+    sample_truncated_gaussian,
+    truncnorm_1d,
+)
 
 __all__ = [
     "image",
@@ -66,10 +72,13 @@ __all__ = [
     "gaussian_posterior",
     "TruncatedSamples",
     "sample_truncated_gaussian",
+    "Ridge",
+    "Dynamics",
     "truncnorm_1d",
     "eigen_gibbs",
     "GibbsSamples",
     "gibbs_intensities",
+    "SweepMoves",
     "BinaryMap",
     "two_level_map",
     "two_level_log_posterior",

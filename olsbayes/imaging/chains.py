@@ -20,17 +20,17 @@ ArviZ's values, from :mod:`olsbayes._mcmc_diagnostics`), or until
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from .._mcmc_diagnostics import ess_bulk, ess_tail, rank_rhat
+from ..errors import InputError
 from .block import block_move, block_step, loose_block
-from .sparse import gibbs_intensities
-from .window import WindowMoves
+from .sparse import SweepMoves, gibbs_intensities
 
-__all__ = ["BoxRun", "ConvergenceRule", "box_gibbs", "chain_diagnostics"]
+__all__ = ["BoxRun", "ConvergenceRule", "RunLength", "box_gibbs", "chain_diagnostics"]
 
 _FIRST = 100  # kept draws per chain before the first convergence check
 _GROWTH = 1.5  # each further block makes the run this much longer
@@ -54,6 +54,24 @@ class ConvergenceRule:
     ess_min: float
     max_samples: int
 
+
+@dataclass(frozen=True)
+class RunLength:
+    """How long the chains of :func:`box_gibbs` run.
+
+    Attributes
+    ----------
+    n_burn : int
+        Discarded sweeps; their first half is the pilot that picks the block.
+    n_samples : int or None
+        Kept draws per chain; None: the convergence-driven run of ``rule``.
+    rule : ConvergenceRule or None
+        When the convergence-driven run stops; needed when ``n_samples`` is None.
+    """
+
+    n_burn: int
+    n_samples: int | None = None
+    rule: ConvergenceRule | None = None
 
 @dataclass(frozen=True)
 class BoxRun:
@@ -106,10 +124,8 @@ def _met(diag: dict, rule: ConvergenceRule) -> bool:
 
 def box_gibbs(
     a: np.ndarray, y: np.ndarray, sigma: float, i_max: float, x0: np.ndarray, *,
-    rng: np.random.Generator, n_samples: int | None, n_burn: int, pairs: np.ndarray,
-    windows: WindowMoves | None, block: float, scale: float,
-    rule: ConvergenceRule | None = None, step: Callable[[], object] | None = None,
-    status: Callable[[str], object] | None = None,
+    rng: np.random.Generator, length: RunLength, moves: SweepMoves, block: float,
+    scale: float, bar: Any = None,
 ) -> BoxRun:
     """Chains of the box prior (flat on ``[0, i_max]``) started at ``x0`` (C, K).
 
@@ -118,33 +134,34 @@ def box_gibbs(
     a, y, sigma, i_max
         Design (N, K), readings (N,), noise sd, upper bound (may be inf).
     rng : Generator
-    n_samples : int or None
-        Kept draws per chain; None: the convergence-driven run of ``rule``.
-    n_burn : int
-        Discarded sweeps; its first half is the pilot that picks the block.
-    pairs, windows
+    length : RunLength
+        Burn-in, and kept draws or the convergence rule.
+    moves : SweepMoves
         The Gibbs sampler's pair and window moves
-        (:func:`~olsbayes.imaging.sparse.gibbs_intensities`).
+        (:func:`~olsbayes.imaging.sparse.gibbs_intensities`); the block move is
+        this function's own ``after_sweep``.
     block : float
         Pilot-sd threshold of the loose block (intensity units); 0: no block.
     scale : float
         Intensity scale of the posterior (the block surrogate's size): the
         prior's scale, or the mode's largest intensity under a bound derived
         from the readings.
-    rule : ConvergenceRule, optional
-        Needed when ``n_samples`` is None.
-    step : callable, optional
-        Called after every sweep.
-    status : callable, optional
-        Called with a one-line status after every convergence check.
+    bar : progress bar, optional
+        Its ``update()`` is called after every sweep and its ``set_postfix_str``
+        with a one-line status after every convergence check (a tqdm bar).
     """
-    kw = dict(pairs=pairs, windows=windows, step=step)
+    if moves.after_sweep is not None:
+        raise InputError("moves.after_sweep: box_gibbs makes its own block moves; got "
+                         f"{moves.after_sweep!r}")
+    n_samples, n_burn = length.n_samples, length.n_burn
+    step = None if bar is None else bar.update
     pilot = n_burn // 2 if block > 0 and n_burn >= 4 else 0  # too short a pilot: no block
     x = np.asarray(x0, dtype=float)
     idx = np.zeros(0, dtype=int)
-    hook, moves = None, [0, 0]
+    hook, tally = None, [0, 0]
     if pilot:
-        draws = gibbs_intensities(a, y, sigma, i_max, x, pilot, rng=rng, n_burn=0, **kw).samples
+        draws = gibbs_intensities(a, y, sigma, i_max, x, pilot, rng=rng, n_burn=0, moves=moves,
+                                  step=step).samples
         x = draws[:, -1]
         idx = loose_block(draws, block)
     if idx.size:
@@ -152,27 +169,40 @@ def box_gibbs(
 
         def hook(state):
             acc, _ = block_step(state, move, i_max, rng=rng)
-            moves[0] += acc
-            moves[1] += state.shape[0]
+            tally[0] += acc
+            tally[1] += state.shape[0]
 
-    kw["after_sweep"] = hook
-    first = n_samples if n_samples is not None else min(_FIRST, rule.max_samples)
-    run = gibbs_intensities(a, y, sigma, i_max, x, first, rng=rng, n_burn=n_burn - pilot, **kw)
-    parts = [run.samples]
-    diag = None
-    while n_samples is None:
+    def run(start, n, burn):
+        return gibbs_intensities(a, y, sigma, i_max, start, n, rng=rng, n_burn=burn,
+                                 moves=replace(moves, after_sweep=hook), step=step).samples
+
+    if n_samples is not None:
+        samples, diag = run(x, n_samples, n_burn - pilot), None
+    else:
+        first = run(x, min(_FIRST, length.rule.max_samples), n_burn - pilot)
+        samples, diag = _until_converged(first, lambda s, n: run(s, n, 0), length.rule, bar)
+    acc = tally[0] / tally[1] if tally[1] else 1.0
+    return BoxRun(samples, idx, acc, diag)
+
+
+def _until_converged(first: np.ndarray, more: Any, rule: ConvergenceRule,
+                     bar: Any) -> tuple[np.ndarray, dict]:
+    """Extend the (C, S, K) draws ``first`` by ``more(last, n)`` until ``rule`` holds.
+
+    The run grows by half each time, up to ``rule.max_samples`` draws per chain;
+    returns every draw and the last check's diagnostics.
+    """
+    parts = [first]
+    while True:
         done = sum(p.shape[1] for p in parts)
         diag = chain_diagnostics(np.concatenate(parts, axis=1))
         diag["converged"] = _met(diag, rule)
-        if status is not None:
-            status(f"{done} draws/chain, R-hat {diag['rhat']:.3f}, ESS bulk "
-                   f"{diag['ess_bulk']:.0f} tail {diag['ess_tail']:.0f} (target "
-                   f"<= {rule.rhat_max:g}, >= {rule.ess_min:g})")
+        if bar is not None:
+            bar.set_postfix_str(f"{done} draws/chain, R-hat {diag['rhat']:.3f}, ESS bulk "
+                                f"{diag['ess_bulk']:.0f} tail {diag['ess_tail']:.0f} (target "
+                                f"<= {rule.rhat_max:g}, >= {rule.ess_min:g})")
         if diag["converged"] or done >= rule.max_samples:
             break
-        more = min(int(np.ceil(done * (_GROWTH - 1))), rule.max_samples - done)
-        parts.append(gibbs_intensities(a, y, sigma, i_max, parts[-1][:, -1], more, rng=rng,
-                                       n_burn=0, **kw).samples)
-    samples = np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
-    acc = moves[0] / moves[1] if moves[1] else 1.0
-    return BoxRun(samples, idx, acc, diag)
+        n = min(int(np.ceil(done * (_GROWTH - 1))), rule.max_samples - done)
+        parts.append(more(parts[-1][:, -1], n))
+    return (np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]), diag

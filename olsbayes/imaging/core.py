@@ -38,15 +38,15 @@ from .._validation import as_rng, finite_array
 from ..errors import ConvergenceWarning, InputError, NullSpaceWarning, PriorBoundWarning
 from ..model import Model
 from .binary import sparse_relaxation, two_level_map
-from .chains import ConvergenceRule, box_gibbs
+from .chains import ConvergenceRule, RunLength, box_gibbs
 from .design import Design, analyse_design, check_directions, design_matrix
 from .gaussian import gaussian_posterior
 from .neighbours import neighbour_groups, neighbour_pairs
 from .options import ImageOptions
 from .priors import Bounded, Gaussian, ImagingPrior, Sparse, TwoLevel, as_prior, with_data_bound
 from .result import ImageResult, hpd_interval, split_rhat
-from .sparse import gibbs_intensities
-from .truncated import sample_truncated_gaussian
+from .sparse import SweepMoves, gibbs_intensities
+from .truncated import Ridge, sample_truncated_gaussian
 from .window import window_moves
 
 __all__ = ["image"]
@@ -282,9 +282,8 @@ def _sampled(model, loc, a, y, mode, design, prior, scale, opts, gen, progress):
 def _sparse_gibbs(model, loc, a, y, x0, prior, opts, gen, step):
     x0 = np.where(x0 < 0.1 * prior.i_max, 0.0, x0)  # dim sources of the jittered mode: spike
     run = gibbs_intensities(a, y, model.sigma, prior.upper, x0, opts.n_samples, rng=gen,
-                            n_burn=opts.n_burn, spike=True,
-                            pairs=neighbour_pairs(model, loc, opts.neighbours), step=step,
-                            w_prior=prior.weight_prior)
+                            n_burn=opts.n_burn, spike=prior.weight_prior, step=step,
+                            moves=SweepMoves(pairs=neighbour_pairs(model, loc, opts.neighbours)))
     return run.samples
 
 
@@ -294,10 +293,10 @@ def _box_gibbs(model, loc, a, y, x0, hi, scale, opts, gen, bar):
         windows = window_moves(a, neighbour_groups(model, loc, opts.window), model.sigma)
     rule = None if opts.n_samples is not None else ConvergenceRule(
         opts.rhat_max, opts.ess_min, opts.max_samples)
-    return box_gibbs(a, y, model.sigma, hi, x0, rng=gen, n_samples=opts.n_samples,
-                     n_burn=opts.n_burn, pairs=neighbour_pairs(model, loc, opts.neighbours),
-                     windows=windows, block=opts.block * scale, scale=scale,
-                     rule=rule, step=bar.update, status=bar.set_postfix_str)
+    moves = SweepMoves(pairs=neighbour_pairs(model, loc, opts.neighbours), windows=windows)
+    return box_gibbs(a, y, model.sigma, hi, x0, rng=gen,
+                     length=RunLength(opts.n_burn, opts.n_samples, rule), moves=moves,
+                     block=opts.block * scale, scale=scale, bar=bar)
 
 
 def _typical(mode):
@@ -328,11 +327,9 @@ def _hmc(a, y, sigma, hi, scale, x0, n_samples, n_burn, gen, design, step):
     b = a.T @ y / sigma**2
     k = q.shape[0]
     full = design.nullity == 0 and design.singular_values[-1] / sigma > 1e-3 / scale
-    ridge = 0.0 if full else 1.0 / scale**2
-    run = sample_truncated_gaussian(
-        q, b, np.zeros(k), np.full(k, hi), x0, n_samples, rng=gen, n_burn=n_burn, ridge=ridge,
-        centre=np.full(k, 0.5 * scale), step=step,
-    )
+    ridge = None if full else Ridge(1.0 / scale**2, np.full(k, 0.5 * scale))
+    run = sample_truncated_gaussian(q, b, np.zeros(k), np.full(k, hi), x0, n_samples, rng=gen,
+                                    n_burn=n_burn, ridge=ridge, step=step)
     return run.samples, run.acceptance
 
 

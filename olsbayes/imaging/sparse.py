@@ -2,9 +2,9 @@
 
 Model ``y = A I + e``, ``e ~ N(0, sigma^2 1)``.  Each intensity has the prior
 
-* ``"bounded"`` (``spike=False``): uniform on [0, i_max] (i_max may be inf:
+* ``"bounded"`` (``spike=None``): uniform on [0, i_max] (i_max may be inf:
   the flat ``"nonnegative"`` prior);
-* ``"sparse"`` (``spike=True``): ``(1 - w) delta_0 + w U(0, i_max)`` -- a dark
+* ``"sparse"`` (``spike=(a_w, b_w)``): ``(1 - w) delta_0 + w U(0, i_max)`` -- a dark
   pixel with probability 1 - w, otherwise any intensity up to i_max -- with a
   hyperprior ``w ~ Beta(a_w, b_w)`` so the data decide how sparse the scene is.
 
@@ -28,7 +28,7 @@ from ..errors import InputError
 from .truncated import truncnorm_1d
 from .window import WindowMoves, combine, coordinate_moves, window_sweep
 
-__all__ = ["GibbsSamples", "gibbs_intensities", "log_ndtr_diff"]
+__all__ = ["GibbsSamples", "SweepMoves", "gibbs_intensities", "log_ndtr_diff"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,32 @@ class GibbsSamples:
 
     samples: np.ndarray
     weight: np.ndarray
+
+
+@dataclass(frozen=True)
+class SweepMoves:
+    """The moves of a Gibbs sweep besides the single-site draws.
+
+    Attributes
+    ----------
+    pairs : ndarray of int, shape (P, 2), optional
+        Source pairs (k, l) that also get an exact move along ``e_k - e_l`` each
+        sweep -- neighbours whose difference the array barely sees, the slow
+        directions of single-site Gibbs.  Only pairs with distinct columns.
+    windows : WindowMoves, optional
+        Exact moves along the slow eigen-directions of local windows of pixels
+        (:mod:`olsbayes.imaging.window`), once each per sweep; box priors only.
+        With them the single-site, pair and window moves of a sweep run together
+        in compiled code, in one random order.
+    after_sweep : callable, optional
+        Called with the intensities ``x`` (C, K) after the moves of every sweep;
+        it may move them in place by an exact move of its own (e.g.
+        :func:`olsbayes.imaging.block.block_step`).  Box priors only.
+    """
+
+    pairs: np.ndarray | None = None
+    windows: WindowMoves | None = None
+    after_sweep: Callable[[np.ndarray], object] | None = None
 
 
 def log_ndtr_diff(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
@@ -104,13 +130,9 @@ def gibbs_intensities(
     *,
     rng: np.random.Generator,
     n_burn: int = 100,
-    spike: bool = False,
-    w_prior: tuple[float, float] = (1.0, 1.0),
-    thin: int = 1,
-    pairs: np.ndarray | None = None,
-    windows: WindowMoves | None = None,
+    moves: SweepMoves | None = None,
+    spike: tuple[float, float] | None = None,
     step: Callable[[], object] | None = None,
-    after_sweep: Callable[[np.ndarray], object] | None = None,
 ) -> GibbsSamples:
     """Run the single-site Gibbs sampler (random scan order per sweep).
 
@@ -122,51 +144,44 @@ def gibbs_intensities(
     sigma : float
     i_max : float
         Upper bound of the slab (inf for a flat nonnegative prior; then
-        ``spike`` must be False).
+        ``spike`` must be None).
     x0 : ndarray, shape (C, K)
         Starting intensities of C chains inside [0, i_max].
-    n_samples, n_burn, thin : int
-        Kept sweeps per chain, discarded sweeps, sweeps per kept draw.
-    spike : bool
-        Add the point mass at 0 with weight 1 - w (``"sparse"`` prior).
-    w_prior : (float, float)
-        Beta hyperprior of w.
-    pairs : ndarray of int, shape (P, 2), optional
-        Source pairs (k, l) that also get an exact move along ``e_k - e_l`` each
-        sweep -- neighbours whose difference the array barely sees, the slow
-        directions of single-site Gibbs.  Only pairs with distinct columns.
-    windows : WindowMoves, optional
-        Exact moves along the slow eigen-directions of local windows of pixels
-        (:mod:`olsbayes.imaging.window`), once each per sweep; box priors only
-        (``spike`` False).  With them the single-site, pair and window moves of
-        a sweep run together in compiled code, in one random order.
+    n_samples, n_burn : int
+        Kept and discarded sweeps per chain.
+    moves : SweepMoves, optional
+        Pair, window and extra moves of every sweep (default: none).
+    spike : (float, float), optional
+        The Beta hyperprior (a_w, b_w) of the slab weight w, adding the point
+        mass at 0 with weight 1 - w (the ``"sparse"`` prior); None: the box prior.
     step : callable, optional
         Called after every sweep (a progress bar's ``update``).
-    after_sweep : callable, optional
-        Called with the intensities ``x`` (C, K) after the moves of every sweep;
-        it may move them in place by an exact move of its own (e.g.
-        :func:`olsbayes.imaging.block.block_step`).  Box priors only.
     """
-    if spike and windows is not None and windows.n_moves:
-        raise InputError("windows: window moves need the box prior (spike=False); got spike=True")
-    if spike and after_sweep is not None:
-        raise InputError("after_sweep: extra moves need the box prior (spike=False); got "
-                         "spike=True")
+    moves = SweepMoves() if moves is None else moves
+    windows, after_sweep = moves.windows, moves.after_sweep
+    if spike is not None and windows is not None and windows.n_moves:
+        raise InputError("moves.windows: window moves need the box prior (spike=None); got "
+                         f"spike={spike!r}")
+    if spike is not None and after_sweep is not None:
+        raise InputError("moves.after_sweep: extra moves need the box prior (spike=None); got "
+                         f"spike={spike!r}")
     x = np.array(x0, dtype=float)
     c, k = x.shape
     r = y - x @ a.T
     norm2 = np.einsum("nk,nk->k", a, a)
     cols = np.ascontiguousarray(a.T)
+    w_prior, spike = spike, spike is not None
     w = np.full(c, 0.5) if spike else np.ones(c)
     out = np.empty((c, n_samples, k))
     w_out = np.empty((c, n_samples))
-    pairs = np.zeros((0, 2), dtype=int) if pairs is None else np.asarray(pairs, dtype=int)
+    pairs = np.zeros((0, 2), dtype=int) if moves.pairs is None else np.asarray(moves.pairs,
+                                                                               dtype=int)
     d_pairs = cols[pairs[:, 0]] - cols[pairs[:, 1]]
     n_pairs = np.einsum("pn,pn->p", d_pairs, d_pairs)
     compiled = None
     if windows is not None:  # box prior: every move of the sweep in the compiled kernel
         compiled = combine(coordinate_moves(a, pairs), windows)
-    for sweep in range(n_burn + n_samples * thin):
+    for sweep in range(n_burn + n_samples):
         log_w = np.log(w)
         log_1mw = np.log1p(-w) if spike else None
         if compiled is not None:
@@ -184,9 +199,9 @@ def gibbs_intensities(
             w = rng.beta(w_prior[0] + n_on, w_prior[1] + k - n_on)
         r = y - x @ a.T  # refresh the residual against round-off drift
         kept = sweep - n_burn
-        if kept >= 0 and kept % thin == 0:
-            out[:, kept // thin] = x
-            w_out[:, kept // thin] = w
+        if kept >= 0:
+            out[:, kept] = x
+            w_out[:, kept] = w
         if step is not None:
             step()
     return GibbsSamples(out, w_out)

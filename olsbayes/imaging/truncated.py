@@ -32,10 +32,50 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import log_ndtr, ndtri_exp
 
-__all__ = ["TruncatedSamples", "sample_truncated_gaussian", "trajectory", "truncnorm_1d"]
+from ..errors import InputError
+
+__all__ = ["Dynamics", "Ridge", "TruncatedSamples", "sample_truncated_gaussian", "trajectory",
+           "truncnorm_1d"]
 
 _TINY_T = 1e-12
 
+
+@dataclass(frozen=True)
+class Ridge:
+    """The surrogate of a singular precision: ``Q + strength * 1`` centred on ``centre``.
+
+    Attributes
+    ----------
+    strength : float
+        Ridge added to every diagonal element of Q (> 0); the draws are then
+        Metropolis-corrected (module notes).
+    centre : ndarray, shape (K,), optional
+        Centre of the ridge (default 0).
+    """
+
+    strength: float
+    centre: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.strength, (int, float, np.floating, np.integer))
+                and not isinstance(self.strength, bool) and 0 < self.strength < np.inf):
+            raise InputError(f"Ridge.strength must be a finite number > 0; got {self.strength!r}")
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """Length and bounce cap of each exact-HMC trajectory.
+
+    Attributes
+    ----------
+    t_total : float
+        Trajectory length (pi/2 decorrelates the untruncated Gaussian fully).
+    max_bounces : int
+        Trajectories with more bounces are rejected (module notes).
+    """
+
+    t_total: float = np.pi / 2
+    max_bounces: int = 20_000
 
 @dataclass(frozen=True)
 class TruncatedSamples:
@@ -173,10 +213,8 @@ def sample_truncated_gaussian(
     *,
     rng: np.random.Generator,
     n_burn: int = 50,
-    ridge: float = 0.0,
-    centre: np.ndarray | None = None,
-    t_total: float = np.pi / 2,
-    max_bounces: int = 20_000,
+    ridge: Ridge | None = None,
+    dynamics: Dynamics = Dynamics(),
     step: Callable[[], object] | None = None,
 ) -> TruncatedSamples:
     """Exact HMC draws of ``exp(-x^T Q x / 2 + b^T x)`` on a box.
@@ -194,16 +232,15 @@ def sample_truncated_gaussian(
     n_samples : int
         Draws kept per chain (after ``n_burn`` discarded trajectories).
     rng : numpy.random.Generator
-    ridge : float
-        Surrogate ridge (0 when Q is positive definite); see the module notes.
-    centre : ndarray, shape (K,), optional
-        Centre of the ridge (default 0).
-    t_total : float
-        Trajectory length (pi/2 decorrelates the untruncated Gaussian fully).
+    ridge : Ridge, optional
+        Surrogate ridge, needed when Q is singular (module notes); None: none.
+    dynamics : Dynamics
+        Trajectory length and bounce cap.
     step : callable, optional
         Called after every trajectory (a progress bar's ``update``).
     """
     k = precision.shape[0]
+    ridge, centre = (0.0, None) if ridge is None else (float(ridge.strength), ridge.centre)
     centre = np.zeros(k) if centre is None else centre
     q = precision + ridge * np.eye(k)
     lq = np.linalg.cholesky(q)
@@ -217,7 +254,8 @@ def sample_truncated_gaussian(
     n_acc = n_traj = bounces = 0
     for it in range(n_burn + n_samples):
         v = rng.standard_normal((c, k)) @ lq_inv  # rows ~ N(0, S)
-        x_new, nb = trajectory(x, mu, v, cov, lower, upper, t_total, max_bounces)
+        x_new, nb = trajectory(x, mu, v, cov, lower, upper, dynamics.t_total,
+                                dynamics.max_bounces)
         ok = np.all(np.isfinite(x_new), axis=1)
         if ridge > 0:
             d_new = np.sum((np.where(ok[:, None], x_new, x) - centre) ** 2, axis=1)

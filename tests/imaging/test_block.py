@@ -13,7 +13,8 @@ import olsbayes as ob
 from olsbayes.errors import ConvergenceWarning, InputError
 from olsbayes.imaging import Bounded, ImageOptions, NonNegative
 from olsbayes.imaging.block import block_move, block_step, loose_block
-from olsbayes.imaging.chains import ConvergenceRule, box_gibbs
+from olsbayes.imaging.chains import ConvergenceRule, RunLength, box_gibbs
+from olsbayes.imaging.sparse import SweepMoves
 from olsbayes.imaging.truncated import trajectory
 
 
@@ -69,8 +70,9 @@ def test_gibbs_with_the_block_keeps_the_target_exact_on_a_small_box():
     the 2-D box-truncated Gaussian within 4 batch-means standard errors."""
     a, y, sigma = _box_gaussian()
     rng = np.random.default_rng(5)
-    run = box_gibbs(a, y, sigma, 1.0, np.full((4, 2), 0.5), rng=rng, n_samples=1500,
-                    n_burn=40, pairs=np.array([[0, 1]]), windows=None, block=0.02, scale=1.0)
+    run = box_gibbs(a, y, sigma, 1.0, np.full((4, 2), 0.5), rng=rng,
+                    length=RunLength(n_burn=40, n_samples=1500),
+                    moves=SweepMoves(pairs=np.array([[0, 1]])), block=0.02, scale=1.0)
     assert run.block.tolist() == [0, 1] and run.samples.shape == (4, 1500, 2)
     d = run.samples
     f = np.stack([d[..., 0], d[..., 1], d[..., 0] ** 2, d[..., 1] ** 2, d[..., 0] * d[..., 1]],
@@ -211,12 +213,35 @@ def test_an_explicit_n_samples_gives_exactly_that_many_draws():
 def test_the_convergence_rule_stops_at_the_cap_with_its_diagnostics():
     a, y, sigma = _box_gaussian()
     rule = ConvergenceRule(rhat_max=1.01, ess_min=1e9, max_samples=130)
-    lines = []
+    bar = _Bar()
     run = box_gibbs(a, y, sigma, 1.0, np.full((2, 2), 0.5), rng=np.random.default_rng(1),
-                    n_samples=None, n_burn=10, pairs=np.zeros((0, 2), dtype=int),
-                    windows=None, block=0.02, scale=1.0, rule=rule, status=lines.append)
+                    length=RunLength(n_burn=10, rule=rule),
+                    moves=SweepMoves(pairs=np.zeros((0, 2), dtype=int)), block=0.02, scale=1.0,
+                    bar=bar)
     assert run.samples.shape[1] == 130 and run.converged is False
-    assert len(lines) == 2 and "R-hat" in lines[-1]
+    assert len(bar.lines) == 2 and "R-hat" in bar.lines[-1]
+    assert bar.sweeps == 10 + 130  # burn-in and kept sweeps, one update each
+
+
+class _Bar:
+    """A progress bar that records what it is told."""
+
+    def __init__(self):
+        self.lines, self.sweeps = [], 0
+
+    def update(self, n=1):
+        self.sweeps += n
+
+    def set_postfix_str(self, line):
+        self.lines.append(line)
+
+
+def test_box_gibbs_refuses_an_after_sweep_of_the_caller():
+    a, y, sigma = _box_gaussian()
+    with pytest.raises(ob.InputError, match="moves.after_sweep"):
+        box_gibbs(a, y, sigma, 1.0, np.full((2, 2), 0.5), rng=np.random.default_rng(1),
+                  length=RunLength(n_burn=10, n_samples=5),
+                  moves=SweepMoves(after_sweep=lambda x: None), block=0.02, scale=1.0)
 
 
 @pytest.mark.parametrize("kwargs,match", [

@@ -16,6 +16,8 @@ from olsbayes.imaging import (
     Gaussian,
     ImageOptions,
     NonNegative,
+    Ridge,
+    SweepMoves,
     design_matrix,
     gaussian_posterior,
     gibbs_intensities,
@@ -148,7 +150,7 @@ def test_exact_hmc_matches_2d_quadrature(singular):
     mean, cov = box_moments_2d(q, b, lo, hi)
     run = sample_truncated_gaussian(
         q, b, lo, hi, np.full((8, 2), 0.5), 1500, rng=np.random.default_rng(7), n_burn=50,
-        ridge=1.0 if singular else 0.0, centre=np.full(2, 0.5),
+        ridge=Ridge(1.0, np.full(2, 0.5)) if singular else None,
     )
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
     assert np.all((x >= 0) & (x <= 1))
@@ -170,13 +172,27 @@ def test_gibbs_with_pair_moves_matches_2d_quadrature():
     q, b = a.T @ a / sigma**2, a.T @ y / sigma**2
     mean, cov = box_moments_2d(q, b, np.zeros(2), np.ones(2))
     run = gibbs_intensities(a, y, sigma, 1.0, np.full((8, 2), 0.5), 2000,
-                            rng=np.random.default_rng(11), n_burn=20, pairs=np.array([[0, 1]]))
+                            rng=np.random.default_rng(11), n_burn=20,
+                            moves=SweepMoves(pairs=np.array([[0, 1]])))
     x = np.moveaxis(run.samples, 1, 0)  # (S, C, 2)
     se = batch_se(x.mean(axis=1))
     np.testing.assert_array_less(np.abs(x.reshape(-1, 2).mean(axis=0) - mean), 5 * se)
     se2 = batch_se(((x - mean) ** 2).mean(axis=1))
     d2 = ((x - mean) ** 2).reshape(-1, 2).mean(axis=0)
     np.testing.assert_array_less(np.abs(d2 - np.diag(cov)), 5 * se2)
+
+
+@pytest.mark.parametrize("strength", [0.0, -1.0, np.inf, np.nan, True, "1"])
+def test_a_ridge_refuses_a_strength_that_is_not_positive_and_finite(strength):
+    with pytest.raises(ob.InputError, match=r"Ridge.strength must be a finite number > 0"):
+        Ridge(strength)
+
+
+def test_the_spike_refuses_extra_moves_after_the_sweep():
+    with pytest.raises(ob.InputError, match="moves.after_sweep"):
+        gibbs_intensities(np.eye(2), np.zeros(2), 0.1, 1.0, np.full((2, 2), 0.5), 4,
+                          rng=np.random.default_rng(0), spike=(1.0, 1.0),
+                          moves=SweepMoves(after_sweep=lambda x: None))
 
 
 def test_exact_hmc_1d_matches_scipy_truncnorm():
@@ -201,8 +217,8 @@ def test_spike_and_slab_gibbs_matches_brute_force(pairs):
     sigma, i_max = 0.2, 1.0
     w = 0.3  # fixed by a very tight Beta hyperprior
     run = gibbs_intensities(a, y, sigma, i_max, np.zeros((8, 2)), 3000,
-                            rng=np.random.default_rng(4), n_burn=50, spike=True,
-                            w_prior=(3e6, 7e6), pairs=pairs)
+                            rng=np.random.default_rng(4), n_burn=50, spike=(3e6, 7e6),
+                            moves=SweepMoves(pairs=pairs))
 
     def lik(x1, x2):
         return np.exp(-0.5 * np.sum((y - a @ np.array([x1, x2])) ** 2) / sigma**2)

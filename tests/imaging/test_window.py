@@ -9,7 +9,7 @@ from reference.moments import batch_se
 import olsbayes as ob
 from olsbayes.imaging import ImageOptions, design_matrix, image
 from olsbayes.imaging._window_kernel import _line, truncnorm_inv
-from olsbayes.imaging.sparse import gibbs_intensities
+from olsbayes.imaging.sparse import SweepMoves, gibbs_intensities
 from olsbayes.imaging.truncated import truncnorm_1d
 from olsbayes.imaging.window import combine, coordinate_moves, window_moves, window_sweep
 
@@ -128,8 +128,8 @@ def test_gibbs_with_window_moves_matches_3d_grid():
     assert moves.n_moves >= 1 and moves.lam.min() < 1e-20  # the null vector is kept
     # compiled path: single-site, pair and window moves in one random order
     run = gibbs_intensities(a, y, sigma, 1.0, np.full((8, 3), 0.5), 2000,
-                            rng=np.random.default_rng(7), n_burn=20, windows=moves,
-                            pairs=np.array([[0, 1], [1, 2]]))
+                            rng=np.random.default_rng(7), n_burn=20,
+                            moves=SweepMoves(pairs=np.array([[0, 1], [1, 2]]), windows=moves))
     _check(run.samples, *_grid_moments(a, y, sigma, 1.0, n=160))
 
 
@@ -151,16 +151,18 @@ def test_window_moves_on_the_half_line():
     y, sigma = np.array([0.3, 0.25]), 0.2
     moves = window_moves(a, np.array([[0, 1]]), sigma, slow=1e-9)
     run = gibbs_intensities(a, y, sigma, np.inf, np.full((8, 2), 0.2), 3000,
-                            rng=np.random.default_rng(9), n_burn=20, windows=moves)
+                            rng=np.random.default_rng(9), n_burn=20,
+                            moves=SweepMoves(windows=moves))
     _check(run.samples, *_grid_moments(a, y, sigma, 6.0, n=600))  # mass beyond 6: < 1e-30
 
 
 def test_window_moves_are_refused_with_the_spike():
     a = np.array([[1.0, 0.9], [0.8, 1.0]])
     moves = window_moves(a, np.array([[0, 1]]), 0.1, slow=1e-9)
-    with pytest.raises(ob.InputError, match="windows"):
+    with pytest.raises(ob.InputError, match="moves.windows"):
         gibbs_intensities(a, np.zeros(2), 0.1, 1.0, np.full((2, 2), 0.5), 4,
-                          rng=np.random.default_rng(0), spike=True, windows=moves)
+                          rng=np.random.default_rng(0), spike=(1.0, 1.0),
+                          moves=SweepMoves(windows=moves))
 
 
 def test_window_moves_mix_closely_spaced_sources():
