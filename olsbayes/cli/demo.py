@@ -40,7 +40,7 @@ from ._common import (
     output_dir,
 )
 from .crlb import crlb_payload, crlb_text
-from .fit import fit_payload, fit_text, posterior_block
+from .fit import PosteriorRequest, fit_payload, fit_text, posterior_block
 
 __all__ = ["register", "run"]
 
@@ -124,8 +124,9 @@ def run(args: argparse.Namespace) -> int:
         payload["selection"] = selection.to_dict()
         say("", "Evidence for K = 0..3 sources:", selection.table())
         payload["posterior"], post_text = posterior_block(
-            model, data, truth.n_sources, truth, post_rng, report=report, ml=fit,
-            selection=selection, progress=not args.quiet)
+            model, data, truth.n_sources, truth, post_rng,
+            PosteriorRequest(report=report, selection=selection), ml=fit,
+            progress=not args.quiet)
         say(post_text)
         if report is not None:
             figs += [report / name for name in ("corner.png", "trace.png", "ppc.png",

@@ -28,6 +28,7 @@ Example:
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +63,7 @@ from ._measurement import (
 )
 
 __all__ = ["register", "run", "fit_payload", "fit_text", "batch_text", "load_fit_inputs",
-           "posterior_block", "angle_unit_of", "in_unit"]
+           "PosteriorRequest", "posterior_block", "angle_unit_of", "in_unit"]
 
 
 def register(subparsers: Any) -> None:
@@ -251,27 +252,49 @@ def _check_posterior_args(args: argparse.Namespace, data: np.ndarray,
         output_dir(args.report, "--report")
 
 
+@dataclass(frozen=True)
+class PosteriorRequest:
+    """What :func:`posterior_block` samples and where it reports.
+
+    Attributes
+    ----------
+    priors : ScenePrior, optional
+        Passed to :func:`olsbayes.posterior.sample` (None: its default).
+    options : SamplerOptions, optional
+        The sampler's settings (None: the defaults).
+    frames : bool
+        The readings are frames of one scene.
+    report : Path, optional
+        Folder of the HTML report (None: no report).
+    metadata : dict, optional
+        Recorded in the report (the data file and its hash).
+    selection : SelectionResult, optional
+        Adds p(K | data) to the report.
+    """
+
+    priors: Any = None
+    options: Any = None
+    frames: bool = False
+    report: Path | None = None
+    metadata: dict[str, Any] | None = None
+    selection: Any = None
+
+
 def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None, rng: Any,
-                    max_steps: int = 20000, report: Path | None = None, *, ml: Any = None,
-                    unit: str = "rad", metadata: dict[str, Any] | None = None,
-                    selection: Any = None, priors: Any = None, options: Any = None,
-                    frames: bool = False, progress: bool = True
-                    ) -> tuple[dict[str, Any], str]:
-    """Sample the posterior (and write the report into ``report``): payload and text.
+                    request: PosteriorRequest = PosteriorRequest(), *, ml: Any = None,
+                    unit: str = "rad", progress: bool = True) -> tuple[dict[str, Any], str]:
+    """Sample the posterior (and write the report the request asks for): payload and text.
 
     ``ml`` (the MLResult printed above) is the walkers' start, so the posterior
     labels its sources as the ML table does; angles are printed in ``unit``.
-    ``selection`` (a SelectionResult) adds p(K | data) to the report.  ``priors``
-    (a ScenePrior), ``options`` (SamplerOptions, default ``max_steps``) and ``frames``
-    go to :func:`olsbayes.posterior.sample`.  ``progress``: the sampler's status
-    line on stderr.
+    ``progress``: the sampler's status line on stderr.
     """
     from ..posterior import SamplerOptions, sample
 
-    folder = None if report is None else output_dir(report, "--report")
-    opts = SamplerOptions(max_steps=max_steps) if options is None else options
-    post = sample(model, data, k, priors=priors, start=ml, options=opts, rng=rng,
-                  progress=progress, frames=frames)
+    folder = None if request.report is None else output_dir(request.report, "--report")
+    opts = SamplerOptions() if request.options is None else request.options
+    post = sample(model, data, k, priors=request.priors, start=ml, options=opts, rng=rng,
+                  progress=progress, frames=request.frames)
     check, mc = post.crlb_check(), post.model_check()
     names = list(post.names)
 
@@ -297,8 +320,8 @@ def posterior_block(model: Model, data: np.ndarray, k: int, truth: Scene | None,
     if folder is not None:
         from ..posterior.report import write_report
 
-        files = write_report(post, folder, truths=truth, ml=ml, selection=selection,
-                             metadata=metadata)
+        files = write_report(post, folder, truths=truth, ml=ml, selection=request.selection,
+                             metadata=request.metadata)
         payload["report"] = files.html
         text.append(f"Report: {files.html}")
     return payload, "\n".join(text)
@@ -354,13 +377,15 @@ def run(args: argparse.Namespace) -> int:
             + f"\nseed {seed}" + (" (drawn; recorded in the JSON and the report)"
                                   if args.seed is None else ""))
     if want_posterior:
-        payload["posterior"], text = posterior_block(
-            model, data, k, truth, post_rng, args.max_steps, args.report, ml=result,
-            unit=unit, metadata={key: record[key] for key in ("data_file", "data_file_sha256")
-                                 if key in record},
+        request = PosteriorRequest(
             priors=prior_from_config(cfg, model, k, data, frames),
             options=sampler_options_from_config(cfg, args.max_steps), frames=frames,
-            progress=not args.quiet)
+            report=args.report,
+            metadata={key: record[key] for key in ("data_file", "data_file_sha256")
+                      if key in record})
+        payload["posterior"], text = posterior_block(model, data, k, truth, post_rng, request,
+                                                     ml=result, unit=unit,
+                                                     progress=not args.quiet)
         blocks.append(text)
     emit(args, payload, "\n".join([head, *blocks]))
     return 0
