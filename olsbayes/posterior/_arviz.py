@@ -186,9 +186,7 @@ def to_inference_data(
     draws: np.ndarray,
     names: list[str],
     *,
-    log_posterior: np.ndarray,
-    log_prior: np.ndarray,
-    accepted: np.ndarray,
+    sample_stats: dict[str, np.ndarray],
     pointwise: np.ndarray,
     data: np.ndarray,
     constants: dict[str, np.ndarray],
@@ -206,9 +204,10 @@ def to_inference_data(
         Relabelled draws (walkers as chains), burn-in removed.
     names : list of str
         Flat parameter names, length P.
-    log_posterior, log_prior : ndarray (chain, draw)
-    accepted : ndarray of bool (chain, draw)
-        Whether the walker moved at that step.
+    sample_stats : dict
+        ArviZ's ``sample_stats`` group, each (chain, draw): ``lp`` (log
+        posterior), ``log_prior`` and ``acceptance_rate`` (1.0 where the walker
+        moved at that step, else 0.0).
     pointwise : ndarray (chain, draw, N) or Deferred
         Per-sub-sensor log-likelihood; a :class:`~._lazy.Deferred` is made on first access.
     data : ndarray (N,)
@@ -241,8 +240,7 @@ def to_inference_data(
         idata = az.from_dict(
             posterior=post,
             posterior_predictive=None if predictive is None else {"obs": predictive},
-            sample_stats={"lp": log_posterior, "log_prior": log_prior,
-                          "acceptance_rate": accepted.astype(float)},
+            sample_stats=sample_stats,
             log_likelihood={"obs": pointwise},
             observed_data={"obs": data},
             constant_data=constants,

@@ -157,8 +157,9 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
                              x.shape[:-1] + (model.n_sensors,))
         observed, replicas = data, predictive_draws(model, prior, x, gen_prior, mu)
     idata = to_inference_data(
-        x, prior.param_names, log_posterior=lpost, log_prior=prior.log_prob(x),
-        accepted=moved.T, pointwise=pointwise, data=observed, constants=constants,
+        x, prior.param_names, sample_stats={"lp": lpost, "log_prior": prior.log_prob(x),
+                                            "acceptance_rate": moved.T.astype(float)},
+        pointwise=pointwise, data=observed, constants=constants,
         attrs=attrs, periodic=prior.periodic, centre=estimate,
         predictive=replicas, prior_draws=prior_draws)
     return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,

@@ -223,16 +223,8 @@ def nested_log_evidence(
     if path is not None and path.exists():
         sampler = _restore(path, checkpoint.key, ndim, n_live)
     else:
-        sampler = dynesty.NestedSampler(
-            log_likelihood,
-            prior_transform,
-            ndim,
-            nlive=n_live,
-            bound="multi",
-            sample=sample,
-            periodic=per,
-            rstate=gen,
-        )
+        sampler = dynesty.NestedSampler(log_likelihood, prior_transform, ndim, nlive=n_live,
+                                        bound="multi", sample=sample, periodic=per, rstate=gen)
         sampler.olsbayes_key = None if checkpoint is None else checkpoint.key
     # the initial live points cost n_live calls that run_nested's cap does not count
     with warnings.catch_warnings():  # dynesty's own cap warning is replaced by ours below
@@ -253,16 +245,10 @@ def nested_log_evidence(
             ConvergenceWarning,
             stacklevel=2,
         )
-    logwt = np.asarray(res.logwt) - res.logz[-1]
     return NestedEvidence(
-        log_evidence=float(res.logz[-1]),
-        error=float(res.logzerr[-1]),
-        n_calls=n_calls,
-        n_iter=int(res.niter),
-        converged=converged,
-        seconds=time.perf_counter() - t0,
-        samples=np.asarray(res.samples),
-        log_weights=logwt,
+        log_evidence=float(res.logz[-1]), error=float(res.logzerr[-1]), n_calls=n_calls,
+        n_iter=int(res.niter), converged=converged, seconds=time.perf_counter() - t0,
+        samples=np.asarray(res.samples), log_weights=np.asarray(res.logwt) - res.logz[-1],
         run=NestedRun.from_results(res),
     )
 
