@@ -20,6 +20,7 @@ ArviZ's values, from :mod:`olsbayes._mcmc_diagnostics`), or until
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -72,6 +73,7 @@ class RunLength:
     n_burn: int
     n_samples: int | None = None
     rule: ConvergenceRule | None = None
+
 
 @dataclass(frozen=True)
 class BoxRun:
@@ -185,8 +187,8 @@ def box_gibbs(
     return BoxRun(samples, idx, acc, diag)
 
 
-def _until_converged(first: np.ndarray, more: Any, rule: ConvergenceRule,
-                     bar: Any) -> tuple[np.ndarray, dict]:
+def _until_converged(first: np.ndarray, more: Callable[[np.ndarray, int], np.ndarray],
+                     rule: ConvergenceRule, bar: Any) -> tuple[np.ndarray, dict]:
     """Extend the (C, S, K) draws ``first`` by ``more(last, n)`` until ``rule`` holds.
 
     The run grows by half each time, up to ``rule.max_samples`` draws per chain;

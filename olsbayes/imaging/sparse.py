@@ -170,7 +170,8 @@ def gibbs_intensities(
     r = y - x @ a.T
     norm2 = np.einsum("nk,nk->k", a, a)
     cols = np.ascontiguousarray(a.T)
-    w_prior, spike = spike, spike is not None
+    w_prior = spike  # the slab weight's Beta hyperprior, or None for the box prior
+    spike = w_prior is not None
     w = np.full(c, 0.5) if spike else np.ones(c)
     out = np.empty((c, n_samples, k))
     w_out = np.empty((c, n_samples))
