@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import expit, log_ndtr
 
+from .._validation import positive_float
 from ..errors import InputError
 from .truncated import truncnorm_1d
 from .window import WindowMoves, combine, coordinate_moves, window_sweep
@@ -120,6 +121,31 @@ def _pair(x, r, k, j, d_kl, norm2, sigma, i_max, spike, rng):
     x[:, j] = np.clip(x[:, j] - t, 0.0, i_max)
 
 
+def _beta_prior(spike: object) -> tuple[float, float] | None:
+    """``spike`` checked: None, or the slab weight's Beta(a_w, b_w) with a_w, b_w > 0."""
+    if spike is None:
+        return None
+    if not isinstance(spike, (tuple, list)) or len(spike) != 2:
+        raise InputError(f"spike must be None or (a_w, b_w), two numbers > 0; got {spike!r}")
+    return positive_float("spike[0]", spike[0]), positive_float("spike[1]", spike[1])
+
+
+def _pairs(pairs: object, k: int) -> np.ndarray:
+    """``moves.pairs`` checked: integer indices of shape (P, 2) in [0, k)."""
+    if pairs is None:
+        return np.zeros((0, 2), dtype=int)
+    arr = np.asarray(pairs)
+    if arr.size == 0:
+        return np.zeros((0, 2), dtype=int)
+    if arr.ndim != 2 or arr.shape[1] != 2 or not np.issubdtype(arr.dtype, np.integer):
+        raise InputError(f"moves.pairs must be integers of shape (P, 2); got dtype {arr.dtype} "
+                         f"and shape {arr.shape}")
+    if arr.min() < 0 or arr.max() >= k:
+        raise InputError(f"moves.pairs must index the {k} intensities, in [0, {k - 1}]; got "
+                         f"[{arr.min()}, {arr.max()}]")
+    return arr.astype(int)
+
+
 def gibbs_intensities(
     a: np.ndarray,
     y: np.ndarray,
@@ -170,13 +196,12 @@ def gibbs_intensities(
     r = y - x @ a.T
     norm2 = np.einsum("nk,nk->k", a, a)
     cols = np.ascontiguousarray(a.T)
-    w_prior = spike  # the slab weight's Beta hyperprior, or None for the box prior
+    w_prior = _beta_prior(spike)  # the slab weight's hyperprior, or None for the box prior
     spike = w_prior is not None
     w = np.full(c, 0.5) if spike else np.ones(c)
     out = np.empty((c, n_samples, k))
     w_out = np.empty((c, n_samples))
-    pairs = np.zeros((0, 2), dtype=int) if moves.pairs is None else np.asarray(moves.pairs,
-                                                                               dtype=int)
+    pairs = _pairs(moves.pairs, k)
     d_pairs = cols[pairs[:, 0]] - cols[pairs[:, 1]]
     n_pairs = np.einsum("pn,pn->p", d_pairs, d_pairs)
     compiled = None

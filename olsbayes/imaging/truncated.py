@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import log_ndtr, ndtri_exp
 
-from ..errors import InputError
+from .._validation import positive_float
 
 __all__ = ["Dynamics", "Ridge", "TruncatedSamples", "sample_truncated_gaussian", "trajectory",
            "truncnorm_1d"]
@@ -57,9 +57,7 @@ class Ridge:
     centre: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.strength, (int, float, np.floating, np.integer))
-                and not isinstance(self.strength, bool) and 0 < self.strength < np.inf):
-            raise InputError(f"Ridge.strength must be a finite number > 0; got {self.strength!r}")
+        positive_float("Ridge.strength", self.strength)
 
 
 @dataclass(frozen=True)

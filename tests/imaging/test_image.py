@@ -184,7 +184,7 @@ def test_gibbs_with_pair_moves_matches_2d_quadrature():
 
 @pytest.mark.parametrize("strength", [0.0, -1.0, np.inf, np.nan, True, "1"])
 def test_a_ridge_refuses_a_strength_that_is_not_positive_and_finite(strength):
-    with pytest.raises(ob.InputError, match=r"Ridge.strength must be a finite number > 0"):
+    with pytest.raises(ob.InputError, match=r"Ridge.strength must be"):
         Ridge(strength)
 
 
@@ -193,6 +193,19 @@ def test_the_spike_refuses_extra_moves_after_the_sweep():
         gibbs_intensities(np.eye(2), np.zeros(2), 0.1, 1.0, np.full((2, 2), 0.5), 4,
                           rng=np.random.default_rng(0), spike=(1.0, 1.0),
                           moves=SweepMoves(after_sweep=lambda x: None))
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(spike=True), r"spike must be None or \(a_w, b_w\)"),
+    (dict(spike=(1.0, 0.0)), r"spike\[1\] must be in \(0, inf\)"),
+    (dict(moves=SweepMoves(pairs=np.array([[0, 2]]))), r"moves.pairs must index the 2 "),
+    (dict(moves=SweepMoves(pairs=np.array([0, 1]))), r"moves.pairs must be integers of shape"),
+    (dict(moves=SweepMoves(pairs=np.array([[0.0, 1.0]]))), r"moves.pairs must be integers"),
+])
+def test_gibbs_refuses_a_bad_spike_or_pairs_before_any_work(kwargs, match):
+    with pytest.raises(ob.InputError, match=match):
+        gibbs_intensities(np.eye(2), np.zeros(2), 0.1, 1.0, np.full((2, 2), 0.5), 4,
+                          rng=np.random.default_rng(0), **kwargs)
 
 
 def test_exact_hmc_1d_matches_scipy_truncnorm():
