@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import log_ndtr, ndtri_exp
 
-from .._validation import positive_float
+from .._validation import integer, positive_float
 
 __all__ = ["Dynamics", "Ridge", "TruncatedSamples", "sample_truncated_gaussian", "trajectory",
            "truncnorm_1d"]
@@ -74,6 +74,10 @@ class Dynamics:
 
     t_total: float = np.pi / 2
     max_bounces: int = 20_000
+
+    def __post_init__(self) -> None:
+        positive_float("Dynamics.t_total", self.t_total)
+        integer("Dynamics.max_bounces", self.max_bounces, low=1)
 
 @dataclass(frozen=True)
 class TruncatedSamples:

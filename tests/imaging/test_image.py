@@ -13,6 +13,7 @@ import olsbayes as ob
 from olsbayes.errors import ConvergenceWarning, InputError, NullSpaceWarning
 from olsbayes.imaging import (
     Bounded,
+    Dynamics,
     Gaussian,
     ImageOptions,
     NonNegative,
@@ -186,6 +187,17 @@ def test_gibbs_with_pair_moves_matches_2d_quadrature():
 def test_a_ridge_refuses_a_strength_that_is_not_positive_and_finite(strength):
     with pytest.raises(ob.InputError, match=r"Ridge.strength must be"):
         Ridge(strength)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(t_total=0.0), r"Dynamics.t_total must be in \(0, inf\)"),
+    (dict(t_total=np.inf), r"Dynamics.t_total must be in \(0, inf\)"),
+    (dict(max_bounces=0), r"Dynamics.max_bounces must be in \[1, inf\]"),
+    (dict(max_bounces=2.5), r"Dynamics.max_bounces must be an integer"),
+])
+def test_the_dynamics_refuse_a_bad_length_or_cap(kwargs, match):
+    with pytest.raises(ob.InputError, match=match):
+        Dynamics(**kwargs)
 
 
 def test_the_spike_refuses_extra_moves_after_the_sweep():
