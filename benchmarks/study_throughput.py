@@ -8,7 +8,9 @@ score it against the CRLB).  Measured side by side:
   and a 2-worker Dask ``LocalCluster`` (processes), each warm (executor started
   and workers imported before the clock starts) -- targets: pool / serial >= 1.6,
   Dask / pool >= 0.8.  Serial runs in a warmed process of its own, never beside a
-  live executor (whose threads would slow it and inflate every ratio);
+  live executor (whose threads would slow it and inflate every ratio), and the pool
+  never beside a live Dask cluster (whose idle scheduler, client and workers take
+  about 12 % of one core): each round starts and warms a cluster for its Dask run;
 * per round, the CPU time per trial of the study's own processes (main process
   plus workers, from /proc) and the fraction of the cores left idle: on a machine
   shared with other jobs the wall-clock ratios measure contention as much as the
@@ -44,6 +46,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import contextlib
 import multiprocessing
 import os
 import subprocess
@@ -114,19 +117,41 @@ def _warm_one(_: int = 0) -> int:
     return os.getpid()
 
 
-def _warm_workers(pool, client) -> set[int]:
-    """Make every worker of both pools import the trial and run it once, so no timed
-    round pays a worker's first import (seconds on a busy machine); the pool's pids."""
+def _warm_pool(pool) -> set[int]:
+    """Make every worker of the pool import the trial and run it once, so no timed
+    round pays a worker's first import (seconds on a busy machine); the workers' pids."""
     pids: set[int] = set()
     for _ in range(20):
         pids |= set(pool.map(_warm_one, range(8)))
         if len(pids) >= 2:
             break
-    client.run(_warm_one)  # on every Dask worker
+    study(pool, 8, chunk_size=4)
     return pids
 
 
+@contextlib.contextmanager
+def _warm_cluster():
+    """A 2-worker Dask ``LocalCluster`` and its client, every worker warmed as the pool's.
+
+    Started for each Dask round and closed after it: an idle cluster's scheduler,
+    client and workers wake every few ms (about 12 % of one core together), which
+    would slow the pool's rounds if it lived beside them."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=":0") as cluster, Client(cluster) as client:
+        client.run(_warm_one)  # on every Dask worker
+        study(client, 8, chunk_size=4)
+        yield client
+
+
 KINDS = ("serial", "processes(2) warm", "dask(2) warm")
+
+
+def _per_task(executor) -> float:
+    """Seconds per task of 64 one-trial chunks of a no-op trial (best of 3)."""
+    return min(timed(lambda: study(executor, 64, trial=noop, chunk_size=1))
+               for _ in range(3)) / 64
 
 
 def throughput(n: int, repeats: int) -> tuple[dict, list, dict]:
@@ -134,27 +159,24 @@ def throughput(n: int, repeats: int) -> tuple[dict, list, dict]:
     Dask back to back so that all three see the same background load.  Also returns
     per round and executor: (wall s, CPU s of the study's processes, idle fraction of
     all cores, 1-min load), and the seconds per task of a no-op chunk on each pool."""
-    from distributed import Client, LocalCluster
-
     ctx = multiprocessing.get_context("forkserver")
-    with cf.ProcessPoolExecutor(2, mp_context=ctx) as pool, \
-            LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                         dashboard_address=":0") as cluster, Client(cluster) as client:
+    rounds = []
+    with cf.ProcessPoolExecutor(2, mp_context=ctx) as pool:
         study("serial", 8)  # imports and caches outside the clock
-        pids = _warm_workers(pool, client)
-        study(pool, 8, chunk_size=4)
-        study(client, 8, chunk_size=4)
-        cpu_of = {"processes(2) warm": lambda: sum(_proc_cpu(p) for p in pids),
-                  "dask(2) warm": lambda: sum(client.run(time.process_time).values())}
-        runs = {"processes(2) warm": lambda: study(pool, n),
-                "dask(2) warm": lambda: study(client, n)}
-        rounds = [{k: (*(serial_apart(n) if k == "serial" else measured(runs[k], cpu_of[k])),
-                       os.getloadavg()[0]) for k in KINDS}
-                  for _ in range(repeats)]
-        # the executors' own cost per task: 64 one-trial chunks of a no-op trial
-        per_task = {name: min(timed(lambda: study(ex, 64, trial=noop, chunk_size=1))
-                              for _ in range(3)) / 64
-                    for name, ex in (("processes(2)", pool), ("dask(2)", client))}
+        pids = _warm_pool(pool)
+        for _ in range(repeats):
+            row = {"serial": (*serial_apart(n), os.getloadavg()[0])}
+            row["processes(2) warm"] = (*measured(lambda: study(pool, n),
+                                                  lambda: sum(_proc_cpu(p) for p in pids)),
+                                        os.getloadavg()[0])
+            with _warm_cluster() as client:
+                row["dask(2) warm"] = (*measured(
+                    lambda: study(client, n),
+                    lambda: sum(client.run(time.process_time).values())), os.getloadavg()[0])
+            rounds.append(row)
+        per_task = {"processes(2)": _per_task(pool)}
+    with _warm_cluster() as client:
+        per_task["dask(2)"] = _per_task(client)
     rates = {k: n / min(r[k][0] for r in rounds) for k in KINDS}
     cold = cold_rounds(n, repeats)
     for k in COLD[1:3]:
