@@ -203,8 +203,9 @@ def warn_rivals(method: str, gap: np.ndarray, converged: np.ndarray, stacklevel:
 
     ``stacklevel`` 4 points at the caller of :func:`olsbayes.ml.fit_ml`.
     """
-    if np.any(gap < RIVAL_WARN):
-        bad = int(np.sum(gap < RIVAL_WARN))
+    close, converged = np.asarray(gap) < RIVAL_WARN, np.asarray(converged)
+    if close.any():
+        bad = int(close.sum())
         warnings.warn(
             f"{bad} of {gap.size} ML fit(s) ({method}) reached a distinct local optimum "
             f"(sources > {DISTINCT_STD:g} Fisher std away) within {RIVAL_WARN:g} of the "
@@ -214,7 +215,7 @@ def warn_rivals(method: str, gap: np.ndarray, converged: np.ndarray, stacklevel:
             MultimodalWarning,
             stacklevel=stacklevel,
         )
-    if not np.all(converged):
+    if not converged.all():
         bad = int(np.sum(~converged))
         warnings.warn(
             f"{bad} of {converged.size} ML fit(s) ({method}) did not meet the "
@@ -232,6 +233,8 @@ def _warn_mirror(model: Model, s: np.ndarray, x: np.ndarray, ll: np.ndarray, cov
     pairs are where simulation found Fisher intervals under-covering
     (:func:`olsbayes.resolution.antipodal_doubts`).
     """
+    if model.kind != "angle" or x.shape[-1] < 2 * (model.n_loc + 1):
+        return  # pairs of ring sources only
     std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
     mirrored = mirror_gap(model, s, x, ll, std) < RIVAL_WARN
     finite = np.all(np.isfinite(std), axis=-1)  # singular fits: the ResolutionWarning's
