@@ -9,6 +9,7 @@ only after :data:`DELAY` seconds, so quick calls print nothing.
 
 from __future__ import annotations
 
+import functools
 import sys
 from typing import Any
 
@@ -36,7 +37,27 @@ def progress_bar(*, enabled: bool, desc: str, unit: str, total: int | None = Non
     initial : int
         Count already done (a resumed run).
     """
+    return _bar_class()(total=total, initial=initial, desc=desc, unit=unit,
+                        disable=not enabled, delay=DELAY, leave=False, file=sys.stderr,
+                        dynamic_ncols=True)
+
+
+@functools.cache
+def _bar_class() -> type:
+    """tqdm whose status changes wait for ``delay`` like its counts do.
+
+    tqdm's ``set_postfix_str`` and ``set_description`` redraw the bar at once, so a
+    call that finished in a fraction of a second but set a status printed a bar all
+    the same; here a redraw before ``start_t + delay`` is skipped (the next one after
+    it shows the latest status).
+    """
     from tqdm import tqdm
 
-    return tqdm(total=total, initial=initial, desc=desc, unit=unit, disable=not enabled,
-                delay=DELAY, leave=False, file=sys.stderr, dynamic_ncols=True)
+    class _DelayedBar(tqdm):
+        def refresh(self, nolock: bool = False, lock_args: Any = None) -> Any:
+            start = getattr(self, "start_t", None)  # None: disabled, or still in __init__
+            if start is not None and self._time() < start + self.delay:
+                return False
+            return super().refresh(nolock=nolock, lock_args=lock_args)
+
+    return _DelayedBar
