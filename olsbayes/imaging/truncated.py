@@ -33,6 +33,7 @@ import numpy as np
 from scipy.special import log_ndtr, ndtri_exp
 
 from .._validation import integer, positive_float
+from ..errors import InputError
 
 __all__ = ["Dynamics", "Ridge", "TruncatedSamples", "sample_truncated_gaussian", "trajectory",
            "truncnorm_1d"]
@@ -243,7 +244,10 @@ def sample_truncated_gaussian(
     """
     k = precision.shape[0]
     ridge, centre = (0.0, None) if ridge is None else (float(ridge.strength), ridge.centre)
-    centre = np.zeros(k) if centre is None else centre
+    centre = np.zeros(k) if centre is None else np.asarray(centre, dtype=float)
+    if centre.shape != (k,):
+        raise InputError(f"ridge.centre must have shape ({k},) (one entry per coordinate); "
+                         f"got {centre.shape}")
     q = precision + ridge * np.eye(k)
     lq = np.linalg.cholesky(q)
     eye = np.eye(k)

@@ -207,7 +207,7 @@ def warn_rivals(method: str, gap: np.ndarray, converged: np.ndarray, stacklevel:
     if close.any():
         bad = int(close.sum())
         warnings.warn(
-            f"{bad} of {gap.size} ML fit(s) ({method}) reached a distinct local optimum "
+            f"{bad} of {close.size} ML fit(s) ({method}) reached a distinct local optimum "
             f"(sources > {DISTINCT_STD:g} Fisher std away) within {RIVAL_WARN:g} of the "
             "estimate's log-likelihood: the likelihood is multimodal there and the Fisher "
             "covariance understates the uncertainty; see MLResult.rival_gap, or sample the "

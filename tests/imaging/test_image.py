@@ -200,6 +200,13 @@ def test_the_dynamics_refuse_a_bad_length_or_cap(kwargs, match):
         Dynamics(**kwargs)
 
 
+def test_a_ridge_centre_of_the_wrong_length_is_refused():
+    with pytest.raises(ob.InputError, match=r"ridge.centre must have shape \(2,\)"):
+        sample_truncated_gaussian(np.eye(2), np.zeros(2), np.zeros(2), np.ones(2),
+                                  np.full((2, 2), 0.5), 4, rng=np.random.default_rng(0),
+                                  ridge=Ridge(1.0, np.zeros(3)))
+
+
 def test_the_spike_refuses_extra_moves_after_the_sweep():
     with pytest.raises(ob.InputError, match="moves.after_sweep"):
         gibbs_intensities(np.eye(2), np.zeros(2), 0.1, 1.0, np.full((2, 2), 0.5), 4,
