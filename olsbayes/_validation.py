@@ -175,6 +175,13 @@ def positive_float(name: str, value: object, *, upper: float | None = None) -> f
     return x
 
 
+def positive_pair(name: str, value: object) -> tuple[float, float]:
+    """Check a pair (a, b) of finite numbers > 0 (e.g. a Beta distribution's shapes)."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+        raise InputError(f"{name} must be a pair (a, b) of numbers > 0; got {_short(value)}")
+    return positive_float(name, value[0]), positive_float(name, value[1])
+
+
 def nonnegative_float(name: str, value: object) -> float:
     """Check a finite scalar >= 0."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):

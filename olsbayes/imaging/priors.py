@@ -41,7 +41,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._validation import positive_float
+from .._validation import positive_float, positive_pair
 from ..errors import InputError
 
 __all__ = [
@@ -194,11 +194,7 @@ class Sparse(_BoxPrior):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        wp = self.weight_prior
-        if isinstance(wp, (str, bytes)) or not hasattr(wp, "__len__") or len(wp) != 2:
-            raise InputError(f"Sparse.weight_prior must be a pair (a, b) of numbers > 0; "
-                             f"got {wp!r}")
-        _set(self, "weight_prior", tuple(positive_float("Sparse.weight_prior", v) for v in wp))
+        _set(self, "weight_prior", positive_pair("Sparse.weight_prior", self.weight_prior))
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import expit, log_ndtr
 
-from .._validation import positive_float
+from .._validation import positive_pair
 from ..errors import InputError
 from .truncated import truncnorm_1d
 from .window import WindowMoves, combine, coordinate_moves, window_sweep
@@ -121,15 +121,6 @@ def _pair(x, r, k, j, d_kl, norm2, sigma, i_max, spike, rng):
     x[:, j] = np.clip(x[:, j] - t, 0.0, i_max)
 
 
-def _beta_prior(spike: object) -> tuple[float, float] | None:
-    """``spike`` checked: None, or the slab weight's Beta(a_w, b_w) with a_w, b_w > 0."""
-    if spike is None:
-        return None
-    if not isinstance(spike, (tuple, list)) or len(spike) != 2:
-        raise InputError(f"spike must be None or (a_w, b_w), two numbers > 0; got {spike!r}")
-    return positive_float("spike[0]", spike[0]), positive_float("spike[1]", spike[1])
-
-
 def _pairs(pairs: object, k: int) -> np.ndarray:
     """``moves.pairs`` checked: integer indices of shape (P, 2) in [0, k)."""
     if pairs is None:
@@ -196,7 +187,8 @@ def gibbs_intensities(
     r = y - x @ a.T
     norm2 = np.einsum("nk,nk->k", a, a)
     cols = np.ascontiguousarray(a.T)
-    w_prior = _beta_prior(spike)  # the slab weight's hyperprior, or None for the box prior
+    # the slab weight's Beta hyperprior, or None for the box prior
+    w_prior = None if spike is None else positive_pair("spike", spike)
     spike = w_prior is not None
     w = np.full(c, 0.5) if spike else np.ones(c)
     out = np.empty((c, n_samples, k))
