@@ -15,6 +15,7 @@ import pytest
 
 import olsbayes as ob
 from olsbayes.bounds import kink_sources
+from olsbayes.ml._numba import cells as _cells
 from olsbayes.ml._numba import fit as _fit_kernel
 from olsbayes.ml._numba import lm as _kernel
 from olsbayes.ml._numba import refine as _refine_kernel
@@ -310,7 +311,7 @@ def test_known_cell_matches_sub_sensor_visibility():
     step = 2 * np.pi / 12  # crossings every half step (pi / 12)
     known = np.array([[0.1, 1.0, 2.0, 0.5], [1.0, 0.8, -2.0, 0.4], [np.pi / 2, 1.0, 2.0, 0.5]])
     vis = np.zeros((3, 2, 12), np.bool_)
-    ok = np.array([_kernel._cell(nrm, known[j], vis[j]) for j in range(3)])
+    ok = np.array([_cells._cell(nrm, known[j], vis[j]) for j in range(3)])
     assert ok.tolist() == [True, True, False]  # pi / 2 is on a sub-sensor's horizon
     jt, r = np.zeros((4, 16)), np.zeros(16)
     s = np.zeros(12)
@@ -319,7 +320,7 @@ def test_known_cell_matches_sub_sensor_visibility():
                       ([1.0 - 0.01, 0.1, -2.0 + 0.01, 2.0], 1),
                       ([np.pi / 2 + 0.01, 1.0, 2.0, 0.5], -1)):  # next to the ambiguous one
         _residual(kind, law, p, nrm, pos, np.array(x), s, jt[:, :12], r[:12], True)
-        assert _kernel._known_cell(jt, vis, ok, 3) == expect
+        assert _cells._known_cell(jt, vis, ok, 3) == expect
 
 
 def test_numpy_lm_stops_at_known_optima_like_the_kernel():

@@ -6,6 +6,8 @@ module             compiles
 ``model``          the forward model and its Jacobian (:mod:`olsbayes.model`)
 ``linalg``         small dense solves (LU, Cholesky) for the kernels below
 ``lm``             bounded Levenberg–Marquardt (:mod:`olsbayes.ml.lm`)
+``horizons``       its steps cut and sources held at sub-sensor horizons (for ``lm``)
+``cells``          the linear cells where its runs stop at known optima (for ``lm``)
 ``fit``            a result's chi^2, Fisher matrix and covariance (:mod:`olsbayes.ml.fit`)
 ``refine``         kink hops and kink tests (:mod:`olsbayes.ml.fast.refine`)
 ``search``         pursuit, alternation, runners-up (:mod:`olsbayes.ml.fast.search`)

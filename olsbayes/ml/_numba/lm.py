@@ -21,7 +21,7 @@ Options used by the fast fit: ``kinks`` cuts rejected steps at the sub-sensor
 horizons of a ring or sphere with the clipped cosine and holds sources on them
 (:func:`_lm_trial`, :mod:`.horizons`); runs of a group
 stop at optima found before (:class:`~olsbayes.ml.lm.Dedupe`), and on such a ring
-also on entering the linear cell of one (:func:`_known_cell`).
+also on entering the linear cell of one (:mod:`.cells`).
 
 Trials are independent and run serially (deterministic; a batch equals a loop
 of single calls bit for bit).  Compiled once per machine (``cache=True``).
@@ -37,6 +37,7 @@ import numpy as np
 from ...model import Model
 from ...sensitivity import CosinePower, is_clipped_cosine
 from ..damping import DOWN, EIG_FLOOR, FLOOR, MAX, START, UP
+from .cells import _cell, _known_cell
 from .horizons import (
     CUT,
     PROBE,
@@ -173,49 +174,6 @@ def _damped_step(a, g, x, fz, lam, d1, ad, gm, fx, step, hc, held):  # pragma: n
 
 
 @numba.njit(cache=True)
-def _cell(nrm, x, vis):  # pragma: no cover - compiled
-    """Fill vis[a, q]: whether sub-sensor q sees source a of the angle fit x.
-
-    Returns False if a source is within 1e-9 of a sub-sensor's horizon (the cell is
-    then ambiguous), else True.
-    """
-    for a in range(x.size // 2):
-        u0, u1 = math.cos(x[2 * a]), math.sin(x[2 * a])
-        for q in range(nrm.shape[1]):
-            c = u0 * nrm[0, q] + u1 * nrm[1, q]
-            if abs(c) < 1e-9:
-                return False
-            vis[a, q] = c > 0.0
-    return True
-
-
-@numba.njit(cache=True)
-def _known_cell(jt, known_vis, known_ok, n_known):  # pragma: no cover - compiled
-    """Index of a known optimum whose linear cell holds the iterate of Jacobian jt, else -1.
-
-    Ring, clipped cosine: the intensity rows of jt are max(cos, 0).
-
-    Inside a cell the readings are linear in the phasors (I cos a, I sin a) and the
-    cell is a product of convex cones, so chi^2 there is convex: a converged
-    optimum inside its cell (``known_ok``: no source on a horizon) is the cell's
-    only minimum, where a run entering the cell ends unless it leaves it again.
-    """
-    k, n = known_vis.shape[1], known_vis.shape[2]
-    for j in range(n_known):
-        same = known_ok[j]
-        for a in range(k):
-            if not same:
-                break
-            for q in range(n):
-                if (jt[2 * a + 1, q] > 0.0) != known_vis[j, a, q]:
-                    same = False
-                    break
-        if same:
-            return j
-    return -1
-
-
-@numba.njit(cache=True)
 def _near(known, n_known, x, tol):  # pragma: no cover - compiled
     """Whether x is within tol (max norm) of one of the rows known[:n_known]."""
     for j in range(n_known):
@@ -254,7 +212,7 @@ def _lm_trial(kind, law, p, nrm, pos, zfl, s, x, fz, max_iter, ftol, w,
     a run whose accepted iterate comes within ``tol`` (max norm) of one stops
     there (converged; its chi^2 is not below that optimum's but for rounding);
     with ``cells`` (ring, clipped cosine) a run whose accepted iterate lies in the
-    linear cell of one (``known_vis``, ``known_ok``: :func:`_cell`) stops with that
+    linear cell of one (``known_vis``, ``known_ok``: :func:`.cells._cell`) stops with that
     optimum as its result.
     """
     jt, r, jt2, r2, a, ad, g, gm, step, xn, fx, fk, hc, hq = w
