@@ -171,7 +171,7 @@ def test_tuple_scores_equal_least_squares(k):
     G^-1 b >= 0, else -inf; and the compiled search (K = 5: the generic loops) picks
     a tuple of the largest score."""
     from olsbayes.ml._numba import tuples as tk
-    from olsbayes.ml.fast.search import _plan_views
+    from olsbayes.ml.fast.search import _DENSE, _plan_views
 
     data, plan, corr, coef, ref = _tuple_case(k, np.float64)
     sc = tuple_scores(plan, corr)
@@ -182,7 +182,7 @@ def test_tuple_scores_equal_least_squares(k):
     np.testing.assert_array_equal(np.isfinite(sc)[clear], feasible[clear])
     np.testing.assert_allclose(sc[clear & feasible], ref[clear & feasible], rtol=1e-9)
     out = np.zeros((data.shape[0], 1, k), np.int64)
-    tk.tuple_trials(*_plan_views(plan), data, out, 0, -1)
+    tk.tuple_trials(*_plan_views(plan), _DENSE, data, out, 0, -1)
     pick = np.array([np.flatnonzero(np.all(plan.subset[plan.combos] == o, axis=1))[0]
                      for o in out[:, 0]])
     top = np.max(sc, axis=1)
@@ -222,24 +222,30 @@ def test_float32_tuple_scores_within_rounding_bound():
 def test_blocked_tuple_search_equals_per_trial(k):
     """Tuple search over blocks of trials (K = 2..4) == one trial at a time, exactly,
     for the best tuple and for the best tuple of a second mode (outside the best's
-    basins), and both == the numpy reference tuple_search."""
+    basins), and both == the numpy reference tuple_search; correlations from the ring
+    atoms' arcs pick the same tuples."""
     from olsbayes.ml._numba import tuples as tk
     from olsbayes.ml.atoms import atoms, cached_default_grid
-    from olsbayes.ml.fast.search import _plan_views
+    from olsbayes.ml.fast.search import _DENSE, _plan_arcs, _plan_views, arc_views
 
     model = ob.Model(ob.Ring(30), 0.05)
     rng = np.random.default_rng(8)
     scene = ob.Scene(directions=rng.uniform(0, 2 * np.pi, k),
                      intensities=np.linspace(1.0, 0.3, k))
     data = model.simulate(scene, rng=rng, size=2 * tk.TUPLE_BLOCK + 5)
-    g = atoms(model, cached_default_grid(model))
+    grid = cached_default_grid(model)
+    g = atoms(model, grid)
+    arcs = arc_views(g, model.array.normals, grid)
     for plan in plans(g, k, 3):
         views = _plan_views(plan)
         out = np.zeros((data.shape[0], 2, k), np.int64)
-        tk.tuple_trials(*views, data, out, 0, 1)
+        tk.tuple_trials(*views, _DENSE, data, out, 0, 1)
         one = np.zeros_like(out)
-        tk._per_trial(*views, data, one, 0, 1)
+        tk._per_trial(*views, _DENSE, data, one, 0, 1)
         np.testing.assert_array_equal(out, one)
+        by_arcs = np.zeros_like(out)
+        tk.tuple_trials(*views, _plan_arcs(plan, arcs), data, by_arcs, 0, 1)
+        np.testing.assert_array_equal(by_arcs, out)
         best, second = tuple_search(plan, data, distinct=True)
         np.testing.assert_array_equal(out[:, 0], best)
         np.testing.assert_array_equal(out[:, 1], second)

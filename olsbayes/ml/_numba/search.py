@@ -213,21 +213,49 @@ def _runners_up(unit, indptr, indices, base, n_alt, sc, out, first):  # pragma: 
 
 
 @numba.njit(cache=True)
-def search_trials(g, gram, gnorm2, unit, indptr, indices, data, k, max_sweeps, n_alt,
+def _arc_correlations(s, arcs, px, py, out):  # pragma: no cover - compiled
+    """out = g @ s for ring atoms whose lit sub-sensors are arcs, in O(M + N).
+
+    arcs = (order, nx, ny, lo, cnt, ct, st): the sub-sensors in angular order and
+    their normals' components in that order; per atom the first lit sub-sensor (in
+    that order), their count and the atom's direction (cos, sin).  An atom's
+    correlation is ``ct * sum(s nx) + st * sum(s ny)`` over its arc: differences of
+    prefix sums px, py (2 N + 1) over the sub-sensors taken twice round.
+    """
+    order, nx, ny, lo, cnt, ct, st = arcs
+    n = order.size
+    px[0], py[0] = 0.0, 0.0
+    for j in range(2 * n):
+        q = j if j < n else j - n
+        v = s[order[q]]
+        px[j + 1] = px[j] + v * nx[q]
+        py[j + 1] = py[j] + v * ny[q]
+    for a in range(out.size):
+        b, e = lo[a], lo[a] + cnt[a]
+        out[a] = ct[a] * (px[e] - px[b]) + st[a] * (py[e] - py[b])
+
+
+@numba.njit(cache=True)
+def search_trials(g, gram, gnorm2, unit, indptr, indices, arcs, data, k, max_sweeps, n_alt,
                   out):  # pragma: no cover - compiled
     """Pursuit + alternation + runners-up for every trial: out (T, C, K), rows 0..K n_alt.
 
     gram: the atoms' Gram matrix (M, M), or (0, 0) to project with the atoms
-    themselves.  The remaining rows of ``out`` (tuple candidates) are left for
-    :func:`tuple_trials`.
+    themselves.  arcs: the ring atoms' arcs (:func:`_arc_correlations`; empty
+    arrays: correlate with the atoms themselves).  The remaining rows of ``out``
+    (tuple candidates) are left for :func:`tuple_trials`.
     """
     m, n = g.shape
     kk = max(k, 1)
     gs, sc = np.empty(m), np.empty((k, m))
+    px, py = np.empty(2 * n + 1), np.empty(2 * n + 1)
     w = (np.empty((kk, n)), np.zeros((kk, kk)), np.empty((kk, m)), np.empty(kk))
     for i in range(data.shape[0]):
         s = data[i]
-        _matvec(g, s, gs)
+        if arcs[3].size:
+            _arc_correlations(s, arcs, px, py, gs)
+        else:
+            _matvec(g, s, gs)
         base = _pursue_and_alternate(g, gram, gnorm2, gs, s, k, max_sweeps, w, sc)
         out[i, 0] = base
         _runners_up(unit, indptr, indices, base, n_alt, sc, out[i], 1)

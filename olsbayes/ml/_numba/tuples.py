@@ -30,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .search import _matvec
+from .search import _arc_correlations, _matvec
 
 __all__ = ["PER_TRIAL_BELOW", "TUPLE_BLOCK", "tuple_trials"]
 
@@ -278,16 +278,17 @@ def _first_max(scores, columns, blocked, masked):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _per_trial(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, data, out,
-               col, col2):  # pragma: no cover - compiled
+def _per_trial(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, arcs, data,
+               out, col, col2):  # pragma: no cover - compiled
     """:func:`tuple_trials` one trial at a time: all scores, then the first maxima."""
     mc, dt = atoms.shape[0], ext.dtype
     corr, pen = np.empty(mc, dt), np.zeros(mc, dt)
     blocked = np.zeros(mc, np.bool_)
     scores = np.empty(columns.shape[1], dt)
     last = columns[columns.shape[0] - 1]
+    px, py = np.empty(2 * data.shape[1] + 1), np.empty(2 * data.shape[1] + 1)
     for i in range(data.shape[0]):
-        _matvec(atoms, data[i], corr)
+        _correlations(atoms, arcs, data[i], px, py, corr)
         _trial_scores(corr, pen, prefixes, prefix_inv, ext_ptr, last, ext, scores)
         arg, _ = _first_max(scores, columns, blocked, False)
         _write(subset, columns, arg, out[i, col])
@@ -295,6 +296,15 @@ def _per_trial(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near,
             _block(near, columns, arg, blocked)
             arg2, best2 = _first_max(scores, columns, blocked, True)
             _write(subset, columns, arg2 if best2 > -np.inf else arg, out[i, col2])
+
+
+@numba.njit(cache=True)
+def _correlations(atoms, arcs, s, px, py, out):  # pragma: no cover - compiled
+    """out = atoms @ s: from the ring atoms' arcs when given (non-empty), else directly."""
+    if arcs[3].size:
+        _arc_correlations(s, arcs, px, py, out)
+    else:
+        _matvec(atoms, s, out)
 
 
 @numba.njit(cache=True)
@@ -314,12 +324,13 @@ def _write(subset, columns, arg, out_row):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, data, out,
-                 col, col2):  # pragma: no cover - compiled
+def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, arcs, data,
+                 out, col, col2):  # pragma: no cover - compiled
     """Best feasible K-tuple (K >= 2) of one coarse plan per trial into out[:, col].
 
     With col2 >= 0, also the best one outside its atoms' basins (``near`` (Mc, Mc))
-    into out[:, col2] (the first one again if there is none).
+    into out[:, col2] (the first one again if there is none).  ``arcs``: the coarse
+    ring atoms' arcs (:func:`.search._arc_correlations`), or empty arrays.
 
     Blocks of up to :data:`TUPLE_BLOCK` trials, vectorised over the trials of a block;
     for K <= 3, fewer than :data:`PER_TRIAL_BELOW` trials one at a time
@@ -328,8 +339,8 @@ def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, nea
     """
     mc, t = atoms.shape[0], data.shape[0]
     if t < PER_TRIAL_BELOW and columns.shape[0] <= 3:
-        _per_trial(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, data, out,
-                   col, col2)
+        _per_trial(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, near, arcs, data,
+                   out, col, col2)
         return
     last = columns[columns.shape[0] - 1]
     nb, dt = min(TUPLE_BLOCK, t), ext.dtype
@@ -337,10 +348,11 @@ def tuple_trials(atoms, subset, columns, prefixes, prefix_inv, ext_ptr, ext, nea
     blocked, pen_t = np.empty(mc, np.bool_), np.zeros((mc, nb), dt)
     best, args = np.empty(nb, dt), np.empty(nb, dt)
     best2, args2 = np.empty(nb, dt), np.empty(nb, dt)
+    px, py = np.empty(2 * data.shape[1] + 1), np.empty(2 * data.shape[1] + 1)
     for start in range(0, t, nb):
         m = min(nb, t - start)
         for tb in range(m):
-            _matvec(atoms, data[start + tb], corr)
+            _correlations(atoms, arcs, data[start + tb], px, py, corr)
             for u in range(mc):
                 corr_t[u, tb] = corr[u]
         pen_t[:] = 0.0

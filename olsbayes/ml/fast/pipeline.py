@@ -8,7 +8,11 @@ knobs and their per-K defaults are :class:`~olsbayes.ml.fast.options.FastOptions
    runner-up positions of each source, and for K >= 2 the best K-tuple of each of
    ``n_coarse`` differently placed coarse subsets (exhaustive,
    :mod:`~olsbayes.ml.fast.tuples`), with ``distinct_modes`` also each subset's
-   best tuple of a second, distinct mode.  Cost O(T M N K^2) per sweep plus
+   best tuple of a second, distinct mode.  Cost: the correlations of every data
+   vector with every atom, O(T M N) -- O(T (M + N)) on a ring with the clipped
+   cosine, whose atoms each light an arc of the sub-sensors (prefix sums,
+   :func:`~olsbayes.ml.fast.search.arc_views`) -- then O(T M K^2) per sweep
+   through the atoms' Gram matrix (O(T M N K^2) without it), plus
    O(T C(M_c, K) K) with C(M_c, K) capped by the tuple budget.
 2. :func:`~olsbayes.ml.fast.refine.refine_starts` -- one joint bounded
    Levenberg–Marquardt run over all candidates of all data vectors (analytic
@@ -51,13 +55,14 @@ import dataclasses
 import numpy as np
 
 from ...model import Model
+from ...sensitivity import is_clipped_cosine
 from ..atoms import atoms, grid_step
 from ..outcome import FitOutcome
 from .escalate import escalate
 from .options import FastOptions
 from .refine import kink_hops, kink_polish, refine_starts, restart
 from .scatter import scattered
-from .search import grid_search
+from .search import arc_views, grid_search
 from .slide import slide
 
 __all__ = ["fit_fast"]
@@ -74,7 +79,9 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
     """
     k = n_sources
     g = atoms(model, grid)
-    idx, inten, _ = grid_search(g, data, k, options)
+    ring = model.kind == "angle" and is_clipped_cosine(model.sensitivity)
+    arcs = arc_views(g, model.array.normals if ring else None, grid if ring else None)
+    idx, inten, _ = grid_search(g, data, k, options, arcs)
     starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
     out = refine_starts(model, data, starts, options, keep=True)
     found = out.alternatives
