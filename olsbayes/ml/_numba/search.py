@@ -19,7 +19,7 @@ import numpy as np
 from ..atoms import NEIGHBOUR
 from .linalg import _solve
 
-__all__ = ["intensities_trials", "neighbours", "search_trials"]
+__all__ = ["intensities_trials", "neighbours", "ring_arcs", "search_trials"]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
@@ -233,6 +233,35 @@ def _arc_correlations(s, arcs, px, py, out):  # pragma: no cover - compiled
     for a in range(out.size):
         b, e = lo[a], lo[a] + cnt[a]
         out[a] = ct[a] * (px[e] - px[b]) + st[a] * (py[e] - py[b])
+
+
+@numba.njit(cache=True)
+def ring_arcs(g, order, nx, ny, ct, st, tol, lo, cnt):  # pragma: no cover - compiled
+    """Each atom's lit sub-sensors (g > 0) as one run in ``order``: lo, cnt (M,).
+
+    False if an atom of g (M, N) differs by more than tol from the clipped cosine
+    ``max(ct nx + st ny, 0)`` of its direction (ct, st) against the normals (nx, ny)
+    taken in ``order``, or lights more than one run of them (circularly).
+    """
+    n = order.size
+    for a in range(g.shape[0]):
+        rises, count, first = 0, 0, 0
+        prev = g[a, order[n - 1]] > 0.0
+        for q in range(n):
+            v = g[a, order[q]]
+            if abs(max(ct[a] * nx[q] + st[a] * ny[q], 0.0) - v) > tol:
+                return False
+            lit = v > 0.0
+            if lit:
+                count += 1
+                if not prev:
+                    rises += 1
+                    first = q
+            prev = lit
+        if rises > 1 or (rises == 0 and 0 < count < n):
+            return False
+        lo[a], cnt[a] = (first if rises == 1 else 0), count
+    return True
 
 
 @numba.njit(cache=True)

@@ -99,8 +99,6 @@ def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 _ARCS: dict = {}  # id -> (weakref, arcs) of read-only ring atom arrays
-#: Atoms per block of the arcs' one-off check (temporaries of _ARC_ROWS x N doubles).
-_ARC_ROWS = 128
 _PLAN_ARCS: dict = {}  # id -> (weakref, arcs, the atoms' arcs) of tuple plans
 
 
@@ -108,33 +106,26 @@ def _ring_arcs(g: np.ndarray, normals: np.ndarray, angles: np.ndarray) -> tuple 
     """The sub-sensors each ring atom lights, as one arc of them in angular order.
 
     ``g`` (M, N) must be the clipped cosine of the unit directions ``angles`` (M,)
-    against ``normals`` (N, 2) (checked to 1e-12 of the largest entry, once, in
-    blocks of :data:`_ARC_ROWS` atoms), so that an atom's correlation with readings is
-    ``cos a sum(s nx) + sin a sum(s ny)`` over the sub-sensors it lights, which on a
-    ring are a run of them in angular order:
+    against ``normals`` (N, 2) (checked to 1e-12 of the largest entry, once:
+    :func:`olsbayes.ml._numba.search.ring_arcs`), so that an atom's correlation with
+    readings is ``cos a sum(s nx) + sin a sum(s ny)`` over the sub-sensors it lights,
+    which on a ring are a run of them in angular order:
     :func:`olsbayes.ml._numba.search._arc_correlations` then costs O(M + N) instead
     of O(M N).  None (correlate with the atoms) when ``g`` is anything else.
     """
-    ct, st = np.cos(angles), np.sin(angles)
+    from .._numba import search as sk
+
     if g.size == 0 or angles.size != g.shape[0]:
         return None
+    ct, st = np.cos(angles), np.sin(angles)
     order = np.argsort(np.arctan2(normals[:, 1], normals[:, 0]), kind="stable")
-    nrm = normals[order]
-    tol = 1e-12 * max(float(np.max(np.abs(g))), 1e-300)
+    nx, ny = np.ascontiguousarray(normals[order, 0]), np.ascontiguousarray(normals[order, 1])
     lo, cnt = np.zeros(g.shape[0], np.int64), np.zeros(g.shape[0], np.int64)
-    for r in range(0, g.shape[0], _ARC_ROWS):
-        rows = slice(r, r + _ARC_ROWS)
-        block = g[rows][:, order]
-        dense = np.maximum(np.outer(ct[rows], nrm[:, 0]) + np.outer(st[rows], nrm[:, 1]), 0.0)
-        if np.max(np.abs(dense - block)) > tol:
-            return None
-        lit = block > 0.0
-        rise = lit & ~np.roll(lit, 1, axis=1)  # unlit -> lit, circularly
-        runs, cnt[rows] = rise.sum(axis=1), lit.sum(axis=1)
-        if not np.all((runs == 1) | (cnt[rows] == 0) | (cnt[rows] == lit.shape[1])):
-            return None
-        lo[rows] = np.where(runs == 1, np.argmax(rise, axis=1), 0)
-    return (_frozen_view(order, np.int64), _frozen_view(nrm[:, 0]), _frozen_view(nrm[:, 1]),
+    tol = 1e-12 * max(float(g.max()), -float(g.min()), 1e-300)
+    if not sk.ring_arcs(_frozen_view(g), _frozen_view(order, np.int64), nx, ny, ct, st, tol,
+                        lo, cnt):
+        return None
+    return (_frozen_view(order, np.int64), _frozen_view(nx), _frozen_view(ny),
             _frozen_view(lo, np.int64), _frozen_view(cnt, np.int64), _frozen_view(ct),
             _frozen_view(st))
 
