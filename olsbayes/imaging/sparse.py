@@ -189,8 +189,8 @@ def gibbs_intensities(
     cols = np.ascontiguousarray(a.T)
     # the slab weight's Beta hyperprior, or None for the box prior
     w_prior = None if spike is None else positive_pair("spike", spike)
-    spike = w_prior is not None
-    w = np.full(c, 0.5) if spike else np.ones(c)
+    sparse = w_prior is not None
+    w = np.full(c, 0.5) if sparse else np.ones(c)
     out = np.empty((c, n_samples, k))
     w_out = np.empty((c, n_samples))
     pairs = _pairs(moves.pairs, k)
@@ -201,18 +201,18 @@ def gibbs_intensities(
         compiled = combine(coordinate_moves(a, pairs), windows)
     for sweep in range(n_burn + n_samples):
         log_w = np.log(w)
-        log_1mw = np.log1p(-w) if spike else None
+        log_1mw = np.log1p(-w) if sparse else None
         if compiled is not None:
             window_sweep(x, r, compiled, sigma, i_max, rng=rng)
         for j in rng.permutation(k) if compiled is None else ():
-            _site(x, r, j, cols[j], norm2[j], sigma, i_max, log_w, log_1mw, spike, rng)
+            _site(x, r, j, cols[j], norm2[j], sigma, i_max, log_w, log_1mw, sparse, rng)
         for p in rng.permutation(pairs.shape[0]) if compiled is None else ():
             if n_pairs[p] > 0:
                 _pair(x, r, pairs[p, 0], pairs[p, 1], d_pairs[p], n_pairs[p], sigma, i_max,
-                      spike, rng)
+                      sparse, rng)
         if after_sweep is not None:
             after_sweep(x)
-        if spike:
+        if sparse:
             n_on = np.count_nonzero(x, axis=1)
             w = rng.beta(w_prior[0] + n_on, w_prior[1] + k - n_on)
         r = y - x @ a.T  # refresh the residual against round-off drift

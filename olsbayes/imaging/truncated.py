@@ -80,6 +80,7 @@ class Dynamics:
         positive_float("Dynamics.t_total", self.t_total)
         integer("Dynamics.max_bounces", self.max_bounces, low=1)
 
+
 @dataclass(frozen=True)
 class TruncatedSamples:
     """Draws of a truncated Gaussian.
@@ -243,17 +244,17 @@ def sample_truncated_gaussian(
         Called after every trajectory (a progress bar's ``update``).
     """
     k = precision.shape[0]
-    ridge, centre = (0.0, None) if ridge is None else (float(ridge.strength), ridge.centre)
+    strength, centre = (0.0, None) if ridge is None else (float(ridge.strength), ridge.centre)
     centre = np.zeros(k) if centre is None else np.asarray(centre, dtype=float)
     if centre.shape != (k,):
         raise InputError(f"ridge.centre must have shape ({k},) (one entry per coordinate); "
                          f"got {centre.shape}")
-    q = precision + ridge * np.eye(k)
+    q = precision + strength * np.eye(k)
     lq = np.linalg.cholesky(q)
     eye = np.eye(k)
     lq_inv = np.linalg.solve(lq, eye)  # Q_s = lq lq^T ; S = lq_inv^T lq_inv
     cov = lq_inv.T @ lq_inv
-    mu = cov @ (linear + ridge * centre)
+    mu = cov @ (linear + strength * centre)
     x = np.array(x0, dtype=float)
     c = x.shape[0]
     out = np.empty((c, n_samples, k))
@@ -263,10 +264,10 @@ def sample_truncated_gaussian(
         x_new, nb = trajectory(x, mu, v, cov, lower, upper, dynamics.t_total,
                                 dynamics.max_bounces)
         ok = np.all(np.isfinite(x_new), axis=1)
-        if ridge > 0:
+        if strength > 0:
             d_new = np.sum((np.where(ok[:, None], x_new, x) - centre) ** 2, axis=1)
             d_old = np.sum((x - centre) ** 2, axis=1)
-            ok &= np.log(rng.random(c)) < 0.5 * ridge * (d_new - d_old)
+            ok &= np.log(rng.random(c)) < 0.5 * strength * (d_new - d_old)
         x = np.where(ok[:, None], x_new, x)
         n_acc += int(ok.sum())
         n_traj += c

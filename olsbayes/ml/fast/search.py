@@ -39,16 +39,20 @@ def _frozen_view(a: np.ndarray, dtype: type = float) -> np.ndarray:
 _VIEWS: dict = {}  # id -> (weakref, views) of read-only atom arrays and tuple plans
 
 
-def _memo(obj: object, make, readonly: bool = True) -> tuple:
-    """``make(obj)``, memoised for a live read-only object (the cached atoms, plans)."""
-    hit = _VIEWS.get(id(obj))
+def _memo(obj: object, make, readonly: bool = True, cache: dict | None = None) -> tuple:
+    """``make(obj)``, memoised for a live read-only object (the cached atoms, plans).
+
+    ``cache``: the dict of one kind of derived arrays (default: the kernel views).
+    """
+    cache = _VIEWS if cache is None else cache
+    hit = cache.get(id(obj))
     if hit is not None and hit[0]() is obj:
         return hit[1]
     out = make(obj)
     if readonly:
-        if len(_VIEWS) >= 64:
-            _VIEWS.clear()
-        _VIEWS[id(obj)] = (weakref.ref(obj), out)
+        if len(cache) >= 64:
+            cache.clear()
+        cache[id(obj)] = (weakref.ref(obj), out)
     return out
 
 
@@ -99,7 +103,7 @@ def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 _ARCS: dict = {}  # id -> (weakref, arcs) of read-only ring atom arrays
-_PLAN_ARCS: dict = {}  # id -> (weakref, arcs, the atoms' arcs) of tuple plans
+_PLAN_ARCS: dict = {}  # id -> (weakref, arcs) of tuple plans
 
 
 def _ring_arcs(g: np.ndarray, normals: np.ndarray, angles: np.ndarray) -> tuple | None:
@@ -142,31 +146,23 @@ def arc_views(g: np.ndarray, normals: np.ndarray | None, angles: np.ndarray | No
     """
     if normals is None or angles is None:
         return _DENSE
-    hit = _ARCS.get(id(g))
-    if hit is not None and hit[0]() is g:
-        return hit[1]
-    arcs = _ring_arcs(g, np.asarray(normals, float), np.asarray(angles, float).ravel())
-    out = _DENSE if arcs is None else arcs
-    if not g.flags.writeable:
-        if len(_ARCS) >= 64:
-            _ARCS.clear()
-        _ARCS[id(g)] = (weakref.ref(g), out)
-    return out
+
+    def make(a: np.ndarray) -> tuple:
+        arcs = _ring_arcs(a, np.asarray(normals, float), np.asarray(angles, float).ravel())
+        return _DENSE if arcs is None else arcs
+
+    return _memo(g, make, readonly=not g.flags.writeable, cache=_ARCS)
 
 
 def _plan_arcs(plan: TuplePlan, arcs: tuple) -> tuple:
-    """The arcs of a plan's coarse atoms (those of its subset), memoised per plan."""
+    """The arcs of a plan's coarse atoms (those of its subset), memoised per plan.
+
+    A plan belongs to the atoms it was built from, so its arcs are theirs.
+    """
     if not arcs[3].size:
         return _DENSE
-    hit = _PLAN_ARCS.get(id(plan))
-    if hit is not None and hit[0]() is plan and hit[2] is arcs:
-        return hit[1]
-    sub = plan.subset
-    out = arcs[:3] + tuple(_frozen_view(a[sub], a.dtype) for a in arcs[3:])
-    if len(_PLAN_ARCS) >= 64:
-        _PLAN_ARCS.clear()
-    _PLAN_ARCS[id(plan)] = (weakref.ref(plan), out, arcs)
-    return out
+    return _memo(plan, lambda p: arcs[:3] + tuple(_frozen_view(a[p.subset], a.dtype)
+                                                  for a in arcs[3:]), cache=_PLAN_ARCS)
 
 
 def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
