@@ -17,6 +17,7 @@ import numba
 import numpy as np
 
 from ..atoms import NEIGHBOUR
+from .hemispheres import tree_correlations
 from .linalg import _solve
 
 __all__ = ["intensities_trials", "neighbours", "ring_arcs", "search_trials"]
@@ -265,24 +266,28 @@ def ring_arcs(g, order, nx, ny, ct, st, tol, lo, cnt):  # pragma: no cover - com
 
 
 @numba.njit(cache=True)
-def search_trials(g, gram, gnorm2, unit, indptr, indices, arcs, data, k, max_sweeps, n_alt,
-                  out):  # pragma: no cover - compiled
+def search_trials(g, gram, gnorm2, unit, indptr, indices, arcs, tree, data, k, max_sweeps,
+                  n_alt, out):  # pragma: no cover - compiled
     """Pursuit + alternation + runners-up for every trial: out (T, C, K), rows 0..K n_alt.
 
     gram: the atoms' Gram matrix (M, M), or (0, 0) to project with the atoms
-    themselves.  arcs: the ring atoms' arcs (:func:`_arc_correlations`; empty
-    arrays: correlate with the atoms themselves).  The remaining rows of ``out``
-    (tuple candidates) are left for :func:`tuple_trials`.
+    themselves.  arcs: the ring atoms' arcs (:func:`_arc_correlations`); tree: the
+    sphere atoms' tree (:func:`.hemispheres.tree_correlations`); empty arrays: correlate
+    with the atoms themselves.  The remaining rows of ``out`` (tuple candidates)
+    are left for :func:`tuple_trials`.
     """
     m, n = g.shape
     kk = max(k, 1)
     gs, sc = np.empty(m), np.empty((k, m))
     px, py = np.empty(2 * n + 1), np.empty(2 * n + 1)
+    v = np.empty((m if tree[0].size else 0, 3))
     w = (np.empty((kk, n)), np.zeros((kk, kk)), np.empty((kk, m)), np.empty(kk))
     for i in range(data.shape[0]):
         s = data[i]
         if arcs[3].size:
             _arc_correlations(s, arcs, px, py, gs)
+        elif tree[0].size:
+            tree_correlations(s, tree, v, gs)
         else:
             _matvec(g, s, gs)
         base = _pursue_and_alternate(g, gram, gnorm2, gs, s, k, max_sweeps, w, sc)

@@ -11,7 +11,10 @@ knobs and their per-K defaults are :class:`~olsbayes.ml.fast.options.FastOptions
    best tuple of a second, distinct mode.  Cost: the correlations of every data
    vector with every atom, O(T M N) -- O(T (M + N)) on a ring with the clipped
    cosine, whose atoms each light an arc of the sub-sensors (prefix sums,
-   :func:`~olsbayes.ml.fast.search.arc_views`) -- then O(T M K^2) per sweep
+   :func:`~olsbayes.ml.fast.search.arc_views`), O(T (M + L)) on a sphere with it,
+   whose atoms' correlations follow one from another over a spanning tree (L ~ M N
+   delta / pi for grid spacing delta, :func:`~olsbayes.ml.fast.search.tree_views`)
+   -- then O(T M K^2) per sweep
    through the atoms' Gram matrix (O(T M N K^2) without it), plus
    O(T C(M_c, K) K) with C(M_c, K) capped by the tuple budget.
 2. :func:`~olsbayes.ml.fast.refine.refine_starts` -- one joint bounded
@@ -62,7 +65,7 @@ from .escalate import escalate
 from .options import FastOptions
 from .refine import kink_hops, kink_polish, refine_starts, restart
 from .scatter import scattered
-from .search import arc_views, grid_search
+from .search import arc_views, grid_search, tree_views
 from .slide import slide
 
 __all__ = ["fit_fast"]
@@ -81,7 +84,9 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
     g = atoms(model, grid)
     ring = model.kind == "angle" and is_clipped_cosine(model.sensitivity)
     arcs = arc_views(g, model.array.normals if ring else None, grid if ring else None)
-    idx, inten, _ = grid_search(g, data, k, options, arcs)
+    sphere = model.kind == "lonlat" and is_clipped_cosine(model.sensitivity)
+    tree = tree_views(g, model.array.normals if sphere else None, grid if sphere else None)
+    idx, inten, _ = grid_search(g, data, k, options, arcs, tree)
     starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
     out = refine_starts(model, data, starts, options, keep=True)
     found = out.alternatives

@@ -22,11 +22,12 @@ import weakref
 
 import numpy as np
 
+from ...geometry import lonlat_to_unit
 from ..atoms import NEIGHBOUR
 from .options import FastOptions
 from .tuples import TuplePlan, tuple_plans
 
-__all__ = ["arc_views", "grid_search"]
+__all__ = ["arc_views", "grid_search", "tree_views"]
 
 
 def _frozen_view(a: np.ndarray, dtype: type = float) -> np.ndarray:
@@ -154,6 +155,50 @@ def arc_views(g: np.ndarray, normals: np.ndarray | None, angles: np.ndarray | No
     return _memo(g, make, readonly=not g.flags.writeable, cache=_ARCS)
 
 
+_TREES: dict = {}  # id -> (weakref, tree) of read-only sphere atom arrays
+#: A sphere atoms' tree is kept while its differences hold at most this share of the M N
+#: atom entries: an entry costs three multiply-adds and a gather, an atom entry one.
+_TREE_SHARE = 0.125
+_NO_TREE = (*(_frozen_view(np.zeros(0), np.int64) for _ in range(4)),
+            *(_frozen_view(np.zeros((0, 3))) for _ in range(2)))
+
+
+def _sphere_tree(g: np.ndarray, normals: np.ndarray, lonlat: np.ndarray) -> tuple | None:
+    """Sphere atoms' correlations over a spanning tree (:mod:`olsbayes.ml._numba.hemispheres`).
+
+    ``g`` (M, N) must be the clipped cosine of the directions ``lonlat`` (M, 2)
+    against ``normals`` (N, 3) (checked to 1e-12 of the largest entry, once), so
+    that the atoms' correlations with readings follow one from another over the
+    tree in O(M + L) instead of O(M N).  None (correlate with the atoms) when
+    ``g`` is anything else or the tree would not save work.
+    """
+    if g.size == 0 or lonlat.shape != (g.shape[0], 2) or normals.shape != (g.shape[1], 3):
+        return None
+    from .._numba import hemispheres as hs
+
+    u = _frozen_view(lonlat_to_unit(lonlat[:, 0], lonlat[:, 1]))
+    tol = 1e-12 * max(float(g.max()), -float(g.min()), 1e-300)
+    ok, *tree = hs.hemisphere_tree(_frozen_view(g), u, _frozen_view(normals), tol,
+                                   int(_TREE_SHARE * g.size))
+    return tuple(_frozen_view(a, a.dtype) for a in tree) + (u,) if ok else None
+
+
+def tree_views(g: np.ndarray, normals: np.ndarray | None, lonlat: np.ndarray | None) -> tuple:
+    """Kernel arguments of :func:`_sphere_tree` for sphere atoms, memoised per read-only ``g``.
+
+    Empty arrays where it does not apply (``normals`` None: not a sphere; or atoms
+    that are not the clipped cosine of ``lonlat``).
+    """
+    if normals is None or lonlat is None:
+        return _NO_TREE
+
+    def make(a: np.ndarray) -> tuple:
+        tree = _sphere_tree(a, np.asarray(normals, float), np.asarray(lonlat, float))
+        return _NO_TREE if tree is None else tree
+
+    return _memo(g, make, readonly=not g.flags.writeable, cache=_TREES)
+
+
 def _plan_arcs(plan: TuplePlan, arcs: tuple) -> tuple:
     """The arcs of a plan's coarse atoms (those of its subset), memoised per plan.
 
@@ -176,7 +221,8 @@ def _plan_views(plan: TuplePlan) -> tuple[np.ndarray, ...]:
 
 
 def grid_search(g: np.ndarray, data: np.ndarray, k: int, options: FastOptions,
-                arcs: tuple = _DENSE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                arcs: tuple = _DENSE, tree: tuple = _NO_TREE
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate K-atom explanations of every data vector (compiled, one trial at a time).
 
     Parameters
@@ -200,6 +246,10 @@ def grid_search(g: np.ndarray, data: np.ndarray, k: int, options: FastOptions,
     arcs : tuple, optional
         Ring atoms as arcs of lit sub-sensors (:func:`arc_views`): the pursuit's
         correlations in O(M + N) per data vector instead of O(M N).
+    tree : tuple, optional
+        Sphere atoms over their spanning tree (:func:`tree_views`): the pursuit's
+        correlations in O(M + L) per data vector instead of O(M N).  (The coarse
+        subsets' atoms lie too far apart for a tree of their own to save work.)
 
     Returns
     -------
@@ -224,7 +274,7 @@ def grid_search(g: np.ndarray, data: np.ndarray, k: int, options: FastOptions,
     idx = np.empty((t, first + n_p * (1 + bool(distinct)), k), dtype=np.int64)
     s = _frozen_view(data)
     if pursuit:
-        sk.search_trials(gv, gram, gnorm2, unit, indptr, indices, arcs, s, k,
+        sk.search_trials(gv, gram, gnorm2, unit, indptr, indices, arcs, tree, s, k,
                          options.max_sweeps, n_alt, idx)
     for j, plan in enumerate(plans):
         tk.tuple_trials(*_plan_views(plan), _plan_arcs(plan, arcs), s, idx, first + j,
