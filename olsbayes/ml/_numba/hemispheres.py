@@ -28,7 +28,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["tree_correlations", "hemisphere_tree"]
+__all__ = ["hemisphere_tree", "tree_correlations"]
 
 
 @numba.njit(cache=True)
