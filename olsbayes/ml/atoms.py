@@ -17,7 +17,6 @@ from .._notice import notice
 from .._validation import finite_array, positive_float
 from ..circular import wrap_angle
 from ..errors import InputError
-from ..geometry import lonlat_to_unit
 from ..model import Model
 
 __all__ = ["default_grid", "default_grid_size", "cached_default_grid", "check_grid",
@@ -189,8 +188,7 @@ def grid_step(model: Model, grid: np.ndarray) -> np.ndarray:
     if model.kind == "angle":
         return np.array([2 * np.pi / m])
     if model.kind == "lonlat":
-        u = lonlat_to_unit(grid[:, 0], grid[:, 1])
-        return np.full(2, np.sqrt(4 * np.pi / m)) if u.size else np.ones(2)
+        return np.full(2, np.sqrt(4 * np.pi / m)) if m else np.ones(2)
     span = np.ptp(grid, axis=0)
     levels = np.array([max(len(np.unique(np.round(grid[:, j], 12))), 2) for j in range(3)])
     return span / (levels - 1)

@@ -73,8 +73,9 @@ def test_tree_correlations_equal_the_atoms_products(sphere, grid):
 
 
 def test_atoms_of_another_law_or_array_get_no_tree():
-    """cos^3 atoms on a sphere are not the clipped cosine, and a few scattered atoms
-    would cost more over a tree than directly: both are correlated directly (empty
+    """cos^3 atoms on a sphere are not the clipped cosine, a few scattered atoms
+    would cost more over a tree than directly, and a tree of more atoms than
+    _TREE_ATOMS would cost seconds to build: all are correlated directly (empty
     tree); so are ring atoms (no tree asked for)."""
     model = ob.Model(ob.Sphere.fibonacci(100), 1e-2, sensitivity=ob.CosinePower(3))
     grid = cached_default_grid(model)
@@ -82,6 +83,11 @@ def test_atoms_of_another_law_or_array_get_no_tree():
     plain = ob.Model(ob.Sphere.fibonacci(100), 1e-2)
     few = np.array([[0.0, 0.0], [2.0, 0.5], [-2.0, -0.5], [1.0, 1.2]])
     assert search.tree_views(atoms(plain, few), plain.array.normals, few)[0].size == 0
+    rng = np.random.default_rng(6)
+    many = np.column_stack([rng.uniform(-np.pi, np.pi, search._TREE_ATOMS + 1),
+                            np.arcsin(rng.uniform(-1, 1, search._TREE_ATOMS + 1))])
+    small = ob.Model(ob.Sphere.fibonacci(8), 1e-2)
+    assert search.tree_views(atoms(small, many), small.array.normals, many)[0].size == 0
     assert search.tree_views(np.ones((3, 4)), None, None) is search._NO_TREE
 
 

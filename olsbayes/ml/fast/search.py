@@ -159,6 +159,9 @@ _TREES: dict = {}  # id -> (weakref, tree) of read-only sphere atom arrays
 #: A sphere atoms' tree is kept while its differences hold at most this share of the M N
 #: atom entries: an entry costs three multiply-adds and a gather, an atom entry one.
 _TREE_SHARE = 0.125
+#: Largest M for which a tree is built: Prim's algorithm costs O(M^2) once per grid
+#: (0.1 s at this M), and every default sphere grid is far below it.
+_TREE_ATOMS = 8192
 _NO_TREE = (*(_frozen_view(np.zeros(0), np.int64) for _ in range(4)),
             *(_frozen_view(np.zeros((0, 3))) for _ in range(2)))
 
@@ -170,9 +173,11 @@ def _sphere_tree(g: np.ndarray, normals: np.ndarray, lonlat: np.ndarray) -> tupl
     against ``normals`` (N, 3) (checked to 1e-12 of the largest entry, once), so
     that the atoms' correlations with readings follow one from another over the
     tree in O(M + L) instead of O(M N).  None (correlate with the atoms) when
-    ``g`` is anything else or the tree would not save work.
+    ``g`` is anything else, has more than :data:`_TREE_ATOMS` atoms, or the tree
+    would not save work.
     """
-    if g.size == 0 or lonlat.shape != (g.shape[0], 2) or normals.shape != (g.shape[1], 3):
+    m, n = g.shape
+    if g.size == 0 or m > _TREE_ATOMS or lonlat.shape != (m, 2) or normals.shape != (n, 3):
         return None
     from .._numba import hemispheres as hs
 
