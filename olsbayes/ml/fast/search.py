@@ -157,7 +157,8 @@ def arc_views(g: np.ndarray, normals: np.ndarray | None, angles: np.ndarray | No
 
 _TREES: dict = {}  # id -> (weakref, tree) of read-only sphere atom arrays
 #: A sphere atoms' tree is kept while its differences hold at most this share of the M N
-#: atom entries: an entry costs three multiply-adds and a gather, an atom entry one.
+#: atom entries: an entry (a gather and three multiply-adds) costs about eight atom
+#: entries of ``G @ s`` (one vectorised multiply-add each).
 _TREE_SHARE = 0.125
 #: Largest M for which a tree is built: Prim's algorithm costs O(M^2) once per grid
 #: (0.1 s at this M), and every default sphere grid is far below it.
