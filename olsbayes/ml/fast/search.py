@@ -110,7 +110,7 @@ _PLAN_ARCS: dict = {}  # id -> (weakref, arcs) of tuple plans
 def _ring_arcs(g: np.ndarray, normals: np.ndarray, angles: np.ndarray) -> tuple | None:
     """The sub-sensors each ring atom lights, as one arc of them in angular order.
 
-    ``g`` (M, N) must be the clipped cosine of the unit directions ``angles`` (M,)
+    ``g`` (M, N) must be the clipped cosine of the directions ``angles`` (M,) or (M, 1)
     against ``normals`` (N, 2) (checked to 1e-12 of the largest entry, once:
     :func:`olsbayes.ml._numba.search.ring_arcs`), so that an atom's correlation with
     readings is ``cos a sum(s nx) + sin a sum(s ny)`` over the sub-sensors it lights,
@@ -120,6 +120,7 @@ def _ring_arcs(g: np.ndarray, normals: np.ndarray, angles: np.ndarray) -> tuple 
     """
     from .._numba import search as sk
 
+    angles = angles.ravel()
     if g.size == 0 or angles.size != g.shape[0]:
         return None
     ct, st = np.cos(angles), np.sin(angles)
@@ -139,20 +140,29 @@ _DENSE = tuple(_frozen_view(np.zeros(0), t) for t in (np.int64, float, float, np
                                                        np.int64, float, float))
 
 
+def _views(g: np.ndarray, normals: np.ndarray | None, locs: np.ndarray | None, build,
+           empty: tuple, cache: dict) -> tuple:
+    """``build(g, normals, locs)`` (``empty`` where it gives None), memoised per read-only g.
+
+    ``empty`` at once where ``normals`` or ``locs`` is None (not asked for).
+    """
+    if normals is None or locs is None:
+        return empty
+
+    def make(a: np.ndarray) -> tuple:
+        out = build(a, np.asarray(normals, float), np.asarray(locs, float))
+        return empty if out is None else out
+
+    return _memo(g, make, readonly=not g.flags.writeable, cache=cache)
+
+
 def arc_views(g: np.ndarray, normals: np.ndarray | None, angles: np.ndarray | None) -> tuple:
     """Kernel arguments of :func:`_ring_arcs` for ring atoms, memoised per read-only ``g``.
 
     Empty arrays where it does not apply (``normals`` None: not a ring; or atoms
     that are not the clipped cosine of ``angles``).
     """
-    if normals is None or angles is None:
-        return _DENSE
-
-    def make(a: np.ndarray) -> tuple:
-        arcs = _ring_arcs(a, np.asarray(normals, float), np.asarray(angles, float).ravel())
-        return _DENSE if arcs is None else arcs
-
-    return _memo(g, make, readonly=not g.flags.writeable, cache=_ARCS)
+    return _views(g, normals, angles, _ring_arcs, _DENSE, _ARCS)
 
 
 _TREES: dict = {}  # id -> (weakref, tree) of read-only sphere atom arrays
@@ -195,14 +205,7 @@ def tree_views(g: np.ndarray, normals: np.ndarray | None, lonlat: np.ndarray | N
     Empty arrays where it does not apply (``normals`` None: not a sphere; or atoms
     that are not the clipped cosine of ``lonlat``).
     """
-    if normals is None or lonlat is None:
-        return _NO_TREE
-
-    def make(a: np.ndarray) -> tuple:
-        tree = _sphere_tree(a, np.asarray(normals, float), np.asarray(lonlat, float))
-        return _NO_TREE if tree is None else tree
-
-    return _memo(g, make, readonly=not g.flags.writeable, cache=_TREES)
+    return _views(g, normals, lonlat, _sphere_tree, _NO_TREE, _TREES)
 
 
 def _plan_arcs(plan: TuplePlan, arcs: tuple) -> tuple:
