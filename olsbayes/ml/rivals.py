@@ -29,7 +29,7 @@ DISTINCT_STD = 3.0
 #: fit_ml warns (MultimodalWarning) when a rival is within this log-likelihood.
 RIVAL_WARN = 3.0
 
-#: The compiled rule for angle fits matches sources over all K! permutations: used
+#: The compiled rule for angle and lon/lat fits matches sources over all K! permutations: used
 #: up to this K.  Beyond it the numpy rule matches them (by
 #: :func:`olsbayes.exchange.best_permutation`: exhaustive up to
 #: :data:`~olsbayes.exchange.MAX_EXHAUSTIVE` sources, the Hungarian algorithm beyond).
@@ -73,11 +73,11 @@ def rival_gap(
     if alternatives is None:
         return np.full(t, np.nan)
     alt_x, alt_chi2 = alternatives
-    if model.kind == "angle" and k <= MAX_SOURCES:  # compiled, same rule
+    if model.kind != "position" and k <= MAX_SOURCES:  # compiled, same rule
         from ._numba import rivals  # numba is imported on first use
 
-        return rivals.angle_rival_gap(x, chi2, alt_x, alt_chi2, std, 0.5 / model.sigma**2, TIE,
-                                  RIVAL_RANGE, permutations(k), DISTINCT_STD)
+        return rivals.far_rival_gap(x, chi2, alt_x, alt_chi2, std, 0.5 / model.sigma**2, TIE,
+                                    RIVAL_RANGE, permutations(k), DISTINCT_STD, model.n_loc + 1)
     return rival_gap_numpy(model, x, chi2, alt_x, alt_chi2, std)
 
 
@@ -85,7 +85,7 @@ def rival_gap_numpy(
     model: Model, x: np.ndarray, chi2: np.ndarray, alt_x: np.ndarray, alt_chi2: np.ndarray,
     std: np.ndarray,
 ) -> np.ndarray:
-    """:func:`rival_gap` in numpy (any model; the reference of the compiled angle case).
+    """:func:`rival_gap` in numpy (any model; the reference of the compiled one).
 
     Candidates are matched nearest first (by log-likelihood), in blocks of
     doubling size, and a trial is done at its first distinct one: the same minimum

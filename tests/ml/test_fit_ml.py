@@ -315,13 +315,39 @@ def test_compiled_post_fit_checks_match_numpy():
     np.testing.assert_array_equal(ck.close_or_weak(x, 4 * h, 0.05), want)
 
 
+@pytest.mark.parametrize("k", [1, 3, 4])
+def test_compiled_rival_gaps_on_a_sphere_match_numpy(k):
+    """Sphere fits (lon, lat, I per source): the compiled rival gaps == numpy's, with
+    candidates listing their sources in another order, near and far (in std) optima,
+    and longitudes across the +-pi seam."""
+    from olsbayes.ml.rivals import rival_gap, rival_gap_numpy
+
+    model = ob.Model(ob.Sphere.fibonacci(100), 1e-2)
+    rng = np.random.default_rng(46 + k)
+    t, c = 300, 8
+    loc = np.stack([rng.choice([-1.0, 1.0], (t, k)) * rng.uniform(3.0, np.pi, (t, k)),
+                    rng.uniform(-1.2, 1.2, (t, k)), rng.uniform(0.2, 1, (t, k))], axis=-1)
+    x = model.canonical(loc.reshape(t, 3 * k))
+    alt = x[:, None, :] + rng.normal(0, 1, (t, c, 3 * k)) * rng.uniform(1e-4, 0.05, (t, c, 1))
+    alt = alt.reshape(t, c, k, 3)[:, :, rng.permutation(k)].reshape(t, c, 3 * k)
+    alt_chi2 = rng.uniform(0.0, 1e-2, (t, c))
+    alt_chi2[rng.uniform(size=(t, c)) < 0.2] = np.inf
+    chi2 = np.full(t, 2e-4)
+    std = rng.uniform(0.001, 0.02, (t, 3 * k))
+    got = rival_gap(model, x, chi2, (alt, alt_chi2), std)
+    ref = rival_gap_numpy(model, x, chi2, alt, alt_chi2, std)
+    assert np.isfinite(ref).any() and np.isinf(ref).any()
+    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
+    np.testing.assert_allclose(got, ref, rtol=1e-14)
+
+
 @pytest.mark.parametrize("k", [7, 8])
 def test_rival_gaps_beyond_the_compiled_rule_match_it(k):
     """From K = 7 on, rival gaps come from the numpy rule (sources matched by the
     Hungarian algorithm beyond 7): equal to the compiled rule's exhaustive K!
     matching, which the package runs only up to K = 6."""
     from olsbayes.exchange import permutations
-    from olsbayes.ml._numba.rivals import angle_rival_gap
+    from olsbayes.ml._numba.rivals import far_rival_gap
     from olsbayes.ml.rivals import DISTINCT_STD, RIVAL_RANGE, TIE, rival_gap
 
     model = ob.Model(ob.Ring(64), 1e-2)
@@ -336,8 +362,8 @@ def test_rival_gaps_beyond_the_compiled_rule_match_it(k):
     chi2 = np.full(t, 2e-4)
     std = rng.uniform(0.002, 0.02, (t, 2 * k))
     got = rival_gap(model, x, chi2, (alt, alt_chi2), std)
-    ref = angle_rival_gap(x, chi2, alt, alt_chi2, std, 0.5 / model.sigma**2, TIE, RIVAL_RANGE,
-                          permutations(k), DISTINCT_STD)
+    ref = far_rival_gap(x, chi2, alt, alt_chi2, std, 0.5 / model.sigma**2, TIE, RIVAL_RANGE,
+                        permutations(k), DISTINCT_STD, 2)
     assert np.isfinite(ref).any() and np.isinf(ref).any()
     np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
     np.testing.assert_allclose(got, ref, rtol=1e-14)
