@@ -287,10 +287,31 @@ def test_escalation_runs_by_default_only_where_the_enumeration_is_affordable():
         fit_ml(big, np.zeros(20_000), 1, "exact")
 
 
+def _same_gaps(got, ref):
+    """Rival gaps equal to rounding, with both finite and infinite ones among them."""
+    assert np.isfinite(ref).any() and np.isinf(ref).any()
+    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
+    np.testing.assert_allclose(got, ref, rtol=1e-14)  # x / (2 s^2) vs x * (0.5 / s^2)
+
+
+def _check_rival_gaps(model, x, alt, rng):
+    """rival_gap (compiled where it covers the model) == rival_gap_numpy on fits x (T, P)
+    with candidates alt (T, C, P): random candidate chi^2 (a fifth of them none) and
+    Fisher std drawn from rng."""
+    from olsbayes.ml.rivals import rival_gap, rival_gap_numpy
+
+    t, c = alt.shape[:2]
+    alt_chi2 = rng.uniform(0.0, 1e-2, (t, c))
+    alt_chi2[rng.uniform(size=(t, c)) < 0.2] = np.inf
+    chi2 = np.full(t, 2e-4)
+    std = rng.uniform(0.001, 0.02, x.shape)
+    _same_gaps(rival_gap(model, x, chi2, (alt, alt_chi2), std),
+               rival_gap_numpy(model, x, chi2, alt, alt_chi2, std))
+
+
 def test_compiled_post_fit_checks_match_numpy():
     """Rival gaps and the close/weak selection: compiled == numpy on random fits."""
     from olsbayes.ml._numba import escalate as ck
-    from olsbayes.ml.rivals import rival_gap, rival_gap_numpy
 
     model = ob.Model(ob.Ring(30), 1e-2)
     rng = np.random.default_rng(44)
@@ -298,15 +319,7 @@ def test_compiled_post_fit_checks_match_numpy():
     x = model.canonical(np.column_stack([rng.uniform(-np.pi, np.pi, (t, k)),
                                          rng.uniform(0, 1, (t, k))])[:, [0, 3, 1, 4, 2, 5]])
     alt = x[:, None, :] + rng.normal(0, 0.02, (t, c, 2 * k))  # near and far (in std) optima
-    alt_chi2 = rng.uniform(0.0, 1e-2, (t, c))
-    alt_chi2[rng.uniform(size=(t, c)) < 0.2] = np.inf
-    chi2 = np.full(t, 2e-4)
-    std = rng.uniform(0.001, 0.02, (t, 2 * k))
-    got = rival_gap(model, x, chi2, (alt, alt_chi2), std)
-    ref = rival_gap_numpy(model, x, chi2, alt, alt_chi2, std)
-    assert np.isfinite(ref).any() and np.isinf(ref).any()
-    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
-    np.testing.assert_allclose(got, ref, rtol=1e-14)  # x / (2 s^2) vs x * (0.5 / s^2)
+    _check_rival_gaps(model, x, alt, rng)
     h = 2 * np.pi / 30
     sep = np.abs(ob.wrap_angle(x[:, 0::2][:, :, None] - x[:, 0::2][:, None, :]))
     sep[:, np.arange(k), np.arange(k)] = np.inf
@@ -320,8 +333,6 @@ def test_compiled_rival_gaps_on_a_sphere_match_numpy(k):
     """Sphere fits (lon, lat, I per source): the compiled rival gaps == numpy's, with
     candidates listing their sources in another order, near and far (in std) optima,
     and longitudes across the +-pi seam."""
-    from olsbayes.ml.rivals import rival_gap, rival_gap_numpy
-
     model = ob.Model(ob.Sphere.fibonacci(100), 1e-2)
     rng = np.random.default_rng(46 + k)
     t, c = 300, 8
@@ -330,15 +341,7 @@ def test_compiled_rival_gaps_on_a_sphere_match_numpy(k):
     x = model.canonical(loc.reshape(t, 3 * k))
     alt = x[:, None, :] + rng.normal(0, 1, (t, c, 3 * k)) * rng.uniform(1e-4, 0.05, (t, c, 1))
     alt = alt.reshape(t, c, k, 3)[:, :, rng.permutation(k)].reshape(t, c, 3 * k)
-    alt_chi2 = rng.uniform(0.0, 1e-2, (t, c))
-    alt_chi2[rng.uniform(size=(t, c)) < 0.2] = np.inf
-    chi2 = np.full(t, 2e-4)
-    std = rng.uniform(0.001, 0.02, (t, 3 * k))
-    got = rival_gap(model, x, chi2, (alt, alt_chi2), std)
-    ref = rival_gap_numpy(model, x, chi2, alt, alt_chi2, std)
-    assert np.isfinite(ref).any() and np.isinf(ref).any()
-    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
-    np.testing.assert_allclose(got, ref, rtol=1e-14)
+    _check_rival_gaps(model, x, alt, rng)
 
 
 @pytest.mark.parametrize("k", [7, 8])
@@ -364,9 +367,7 @@ def test_rival_gaps_beyond_the_compiled_rule_match_it(k):
     got = rival_gap(model, x, chi2, (alt, alt_chi2), std)
     ref = far_rival_gap(x, chi2, alt, alt_chi2, std, 0.5 / model.sigma**2, TIE, RIVAL_RANGE,
                         permutations(k), DISTINCT_STD, 2)
-    assert np.isfinite(ref).any() and np.isinf(ref).any()
-    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
-    np.testing.assert_allclose(got, ref, rtol=1e-14)
+    _same_gaps(got, ref)
 
 
 def test_rival_gap_numpy_nearest_first_equals_matching_every_candidate():

@@ -37,10 +37,10 @@ def _distinct(cand, best, std, perms, n_std, d1):  # pragma: no cover - compiled
     for p in range(perms.shape[0]):
         cost = 0.0
         for j in range(k):
-            pair = 0.0
+            pair = 0.0  # 0 + d^2 is d^2: the same sums as numpy's, coordinate by coordinate
             for c in range(d1 - 1):
                 d = _error(cand, best, perms[p, j], j, c, d1)
-                pair = d * d if c == 0 else pair + d * d
+                pair += d * d
             cost += pair
         if cost < cost_min:
             cost_min, arg = cost, p

@@ -103,6 +103,11 @@ def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
     return _memo(g, make, readonly=not g.flags.writeable)
 
 
+def _law_tol(g: np.ndarray) -> float:
+    """Tolerance of the check that atoms g are the clipped cosine: 1e-12 of the largest entry."""
+    return 1e-12 * max(float(g.max()), -float(g.min()), 1e-300)
+
+
 _ARCS: dict = {}  # id -> (weakref, arcs) of read-only ring atom arrays
 _PLAN_ARCS: dict = {}  # id -> (weakref, arcs) of tuple plans
 
@@ -127,7 +132,7 @@ def _ring_arcs(g: np.ndarray, normals: np.ndarray, angles: np.ndarray) -> tuple 
     order = np.argsort(np.arctan2(normals[:, 1], normals[:, 0]), kind="stable")
     nx, ny = np.ascontiguousarray(normals[order, 0]), np.ascontiguousarray(normals[order, 1])
     lo, cnt = np.zeros(g.shape[0], np.int64), np.zeros(g.shape[0], np.int64)
-    tol = 1e-12 * max(float(g.max()), -float(g.min()), 1e-300)
+    tol = _law_tol(g)
     if not sk.ring_arcs(_frozen_view(g), _frozen_view(order, np.int64), nx, ny, ct, st, tol,
                         lo, cnt):
         return None
@@ -193,7 +198,7 @@ def _sphere_tree(g: np.ndarray, normals: np.ndarray, lonlat: np.ndarray) -> tupl
     from .._numba import hemispheres as hs
 
     u = _frozen_view(lonlat_to_unit(lonlat[:, 0], lonlat[:, 1]))
-    tol = 1e-12 * max(float(g.max()), -float(g.min()), 1e-300)
+    tol = _law_tol(g)
     ok, *tree = hs.hemisphere_tree(_frozen_view(g), u, _frozen_view(normals), tol,
                                    int(_TREE_SHARE * g.size))
     return tuple(_frozen_view(a, a.dtype) for a in tree) + (u,) if ok else None
