@@ -29,15 +29,38 @@ builds the mirrored configuration, a starting point for a mode search
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ._validation import positive_float
 from .circular import wrap_angle
 
-__all__ = ["antipodal_pairs", "mirror_pair", "ANTIPODAL_SPACINGS"]
+__all__ = ["antipodal_pairs", "pair_offsets", "source_pairs", "mirror_pair",
+           "ANTIPODAL_SPACINGS"]
 
 #: Pairs within this many sensor spacings of antipodal are reported by default.
 ANTIPODAL_SPACINGS = 2.0
+
+
+@functools.lru_cache(maxsize=64)
+def source_pairs(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index arrays (i, j) of the K (K - 1) / 2 source pairs i < j, row by row (read-only)."""
+    i, j = np.triu_indices(k, 1)
+    i.flags.writeable = j.flags.writeable = False
+    return i, j
+
+
+def pair_offsets(model, x: np.ndarray) -> np.ndarray:
+    """Each ring source pair's offset from antipodal, in sensor spacings: (T, K (K - 1) / 2).
+
+    ``x`` (T, P): ring estimates in the flat layout (angles in rad); pairs in the
+    order of :func:`source_pairs`.  The offset of pair (i, j) is
+    ``wrap(theta_j - theta_i - pi) / (2 pi / N)``, as :func:`antipodal_pairs` gives it.
+    """
+    theta = x[:, 0 :: model.n_loc + 1]
+    i, j = source_pairs(theta.shape[1])
+    return wrap_angle(theta[:, j] - theta[:, i] - np.pi) / (2.0 * np.pi / model.n_sensors)
 
 
 def antipodal_pairs(model, params: np.ndarray, *, within: float = ANTIPODAL_SPACINGS

@@ -39,7 +39,7 @@ import warnings
 
 import numpy as np
 
-from .circular import wrap_angle
+from .antipodal import pair_offsets, source_pairs
 from .errors import NearResolutionWarning
 
 __all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "min_separation",
@@ -71,8 +71,9 @@ def min_separation(model, x: np.ndarray) -> np.ndarray:
     if k < 2:
         return np.full(t, np.inf)
     loc = x.reshape(t, k, model.n_loc + 1)[..., :-1]
+    i, j = source_pairs(k)
     if model.kind == "position":
-        d = np.linalg.norm(loc[:, :, None, :] - loc[:, None, :, :], axis=-1)
+        d = np.linalg.norm(loc[:, i] - loc[:, j], axis=-1)
     else:
         if model.kind == "angle":
             u = np.stack([np.cos(loc[..., 0]), np.sin(loc[..., 0])], axis=-1)
@@ -80,9 +81,8 @@ def min_separation(model, x: np.ndarray) -> np.ndarray:
             lon, lat = loc[..., 0], loc[..., 1]
             u = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
                          axis=-1)
-        d = np.arccos(np.clip(np.einsum("tid,tjd->tij", u, u), -1.0, 1.0))
-    d[:, np.arange(k), np.arange(k)] = np.inf
-    return d.min(axis=(1, 2)) / sensor_spacing(model)
+        d = np.arccos(np.clip(np.einsum("tpd,tpd->tp", u[:, i], u[:, j]), -1.0, 1.0))
+    return d.min(axis=1) / sensor_spacing(model)
 
 
 def weak_sources(model, x: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -148,12 +148,11 @@ def antipodal_doubts(model, x: np.ndarray) -> np.ndarray:
     k = p // (model.n_loc + 1)
     if model.kind != "angle" or k < 2:
         return np.zeros(t, dtype=bool)
-    theta = x.reshape(t, k, model.n_loc + 1)[..., 0]
-    i, j = np.triu_indices(k, 1)
     # each pair's offset from antipodal, as olsbayes.antipodal.antipodal_pairs measures it
-    offset = wrap_angle(theta[:, j] - theta[:, i] - np.pi) / (2.0 * np.pi / model.n_sensors)
-    near = np.abs(offset) < ANTIPODAL_DOUBT  # (T, pairs)
-    return (near.any(axis=1) & (k >= 4)) | (near.sum(axis=1) >= 2)
+    near = np.abs(pair_offsets(model, x)) < ANTIPODAL_DOUBT  # (T, pairs)
+    if k >= 4:
+        return near.any(axis=1)
+    return np.count_nonzero(near, axis=1) >= 2
 
 
 def warn_gaussian_doubts(model, x: np.ndarray, cov: np.ndarray, method: str, *,

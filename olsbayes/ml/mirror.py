@@ -16,7 +16,7 @@ import itertools
 
 import numpy as np
 
-from ..antipodal import ANTIPODAL_SPACINGS, antipodal_pairs, mirror_pair
+from ..antipodal import ANTIPODAL_SPACINGS, antipodal_pairs, mirror_pair, pair_offsets
 from ..exchange import estimation_errors
 from ..model import Model
 from .rivals import DISTINCT_STD
@@ -72,8 +72,10 @@ def mirror_gap(model: Model, data: np.ndarray, x: np.ndarray, ll: np.ndarray,
     out = np.full(x.shape[0], np.inf)
     if model.kind != "angle":
         return out
-    cand = [mirror_candidates(model, row) for row in x]
-    rows = np.repeat(np.arange(x.shape[0]), [c.shape[0] for c in cand])
+    # only estimates with a pair that near antipodal have mirrored configurations
+    near = np.flatnonzero(np.any(np.abs(pair_offsets(model, x)) < ANTIPODAL_SPACINGS, axis=1))
+    cand = [mirror_candidates(model, x[r]) for r in near]
+    rows = np.repeat(near, [c.shape[0] for c in cand])
     if rows.size == 0:
         return out
     fit = refine_batch(model, data[rows], np.concatenate(cand),

@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 
 import olsbayes as ob
+from olsbayes.antipodal import antipodal_pairs, pair_offsets, source_pairs
 from olsbayes.resolution import (
     ANTIPODAL_DOUBT,
     RESOLUTION_SPACINGS,
     WEAK_SDS,
     antipodal_doubts,
     gaussian_doubts,
+    min_separation,
     weak_sources,
 )
 
@@ -112,6 +114,29 @@ def test_antipodal_doubts_from_the_estimates():
     sphere = ob.Model(ob.Sphere.fibonacci(20), 0.01)
     assert not antipodal_doubts(sphere, np.array([[0.1, 0.2, 1.0, 0.1 + pi, -0.2, 1.0]])).any()
     assert ANTIPODAL_DOUBT == 1.0
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 5])
+def test_batched_pair_measures_equal_the_per_scene_ones(k):
+    """pair_offsets (T, pairs) is antipodal_pairs' offset row by row; min_separation
+    over the pairs is the smallest off-diagonal angle of the full matrix."""
+    rng = np.random.default_rng(k)
+    model = ob.Model(ob.Ring(30), 0.01)
+    x = np.stack([np.column_stack([rng.uniform(-np.pi, np.pi, k), np.ones(k)]).ravel()
+                  for _ in range(40)])
+    if k > 1:  # source 1 near the antipode of source 0 in five rows
+        x[:5, 2] = x[:5, 0] + np.pi + rng.uniform(-2, 2, 5) * H
+    off = pair_offsets(model, x)
+    i, j = source_pairs(k)
+    assert off.shape == (40, k * (k - 1) // 2)
+    for row, o in zip(x, off):
+        near = {(a, b): v for a, b, v in antipodal_pairs(model, row, within=2.0)}
+        assert near == {(a, b): v for a, b, v in zip(i, j, o) if abs(v) < 2.0}
+    theta = x[:, 0::2]
+    full = np.abs(np.angle(np.exp(1j * (theta[:, :, None] - theta[:, None, :]))))
+    full[:, np.arange(k), np.arange(k)] = np.inf
+    np.testing.assert_allclose(min_separation(model, x), full.min(axis=(1, 2)) / H,
+                               rtol=1e-7, atol=1e-6)  # arccos near 1: ~1e-8 rad
 
 
 def test_four_sources_with_a_near_antipodal_pair_warn():
