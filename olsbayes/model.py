@@ -383,6 +383,8 @@ class Model(Frozen):
         blocks = x.reshape(x.shape[:-1] + (self.n_sources_of(x), self.n_loc + 1))
         if self.kind != "position":
             blocks[..., 0] = wrap_angle(blocks[..., 0])
+        if blocks.shape[-2] < 2:
+            return x  # one source: nothing to sort (blocks is a view of x)
         order = np.argsort(blocks[..., 0], axis=-1, kind="stable")
         blocks = np.take_along_axis(blocks, order[..., None], axis=-2)
         return blocks.reshape(x.shape)

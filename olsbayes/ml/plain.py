@@ -14,6 +14,7 @@ from .._validation import as_rng
 from ..bounds import SINGULAR_RTOL, bound_covariance
 from ..errors import AntipodalWarning, ConvergenceWarning, InputError, MultimodalWarning
 from ..model import Model
+from ..antipodal import ANTIPODAL_SPACINGS, pair_offsets
 from ..resolution import ANTIPODAL_DOUBT, antipodal_doubts
 from .atoms import cached_default_grid, check_atom_memory, check_grid, default_grid_size
 from .exact import check_exact, enumerate_optimum
@@ -235,6 +236,8 @@ def _warn_mirror(model: Model, s: np.ndarray, x: np.ndarray, ll: np.ndarray, cov
     """
     if model.kind != "angle" or x.shape[-1] < 2 * (model.n_loc + 1):
         return  # pairs of ring sources only
+    if not np.any(np.abs(pair_offsets(model, x)) < max(ANTIPODAL_SPACINGS, ANTIPODAL_DOUBT)):
+        return  # no pair near antipodal: neither a mirrored optimum nor a doubt
     std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
     mirrored = mirror_gap(model, s, x, ll, std) < RIVAL_WARN
     finite = np.all(np.isfinite(std), axis=-1)  # singular fits: the ResolutionWarning's
