@@ -49,6 +49,7 @@ class NumpyGridFitter:
         self.atoms = np.maximum(u @ self.nrm.T, 0.0)  # (M, N)
         self.norm2 = np.einsum("mn,mn->m", self.atoms, self.atoms)
         self.n_gn = n_gn
+        self._near: np.ndarray | None = None
 
     def response(self, x: np.ndarray) -> np.ndarray:
         """Readings (N,) of the sources x (K * (D - 1 + 1),)."""
@@ -68,10 +69,17 @@ class NumpyGridFitter:
             cols.append(np.maximum(c[k], 0.0))
         return b[:, -1] @ np.maximum(c, 0.0), np.column_stack(cols)
 
-    def pursuit(self, s: np.ndarray, k: int) -> np.ndarray:
-        """K greedy grid directions and their least-squares intensities, flat (P,)."""
+    def pursuit(self, s: np.ndarray, k: int, first: int | None = None) -> np.ndarray:
+        """K greedy grid directions and their least-squares intensities, flat (P,).
+
+        ``first``: the first direction's grid index instead of the greedy choice.
+        """
         idx, r = [], s
-        for _ in range(k):
+        if first is not None:
+            idx.append(first)
+            inten = np.linalg.lstsq(self.atoms[idx].T, s, rcond=None)[0]
+            r = s - inten @ self.atoms[idx]
+        for _ in range(k - len(idx)):
             c = self.atoms @ r
             score = np.where(c > 0, c * c / self.norm2, -np.inf)
             score[idx] = -np.inf
@@ -80,9 +88,35 @@ class NumpyGridFitter:
             r = s - inten @ self.atoms[idx]
         return np.column_stack([self.grid[idx], np.maximum(inten, 0.0)]).ravel()
 
-    def fit(self, s: np.ndarray, k: int) -> tuple[np.ndarray, float]:
-        """Fit K sources to readings s (N,): parameters (P,) and chi^2 (sum of squares)."""
-        x = self.pursuit(s, k)
+    def fit(self, s: np.ndarray, k: int, starts: int = 1) -> tuple[np.ndarray, float]:
+        """Fit K sources to readings s (N,): parameters (P,) and chi^2 (sum of squares).
+
+        ``starts`` R > 1: R pursuits, the r-th forced to take the r-th best-correlated
+        atom first (then greedy), each refined; the best chi^2 wins.
+        """
+        if starts == 1:
+            return self.refine(s, self.pursuit(s, k))
+        fits = [self.refine(s, self.pursuit(s, k, first=f)) for f in self.firsts(s, starts)]
+        return min(fits, key=lambda f: f[1])
+
+    def firsts(self, s: np.ndarray, r: int) -> list[int]:
+        """The R best-correlated atoms of s, none within cosine 0.95 of one before it."""
+        if self._near is None:  # once per array: which atoms are that close, (M, M)
+            unit = self.atoms / np.sqrt(self.norm2)[:, None]
+            self._near = unit @ unit.T > 0.95
+        c = self.atoms @ s
+        blocked = c <= 0
+        chosen: list[int] = []
+        for a in np.argsort(-c * c / self.norm2):
+            if len(chosen) == r:
+                break
+            if not blocked[a]:
+                chosen.append(int(a))
+                blocked |= self._near[a]
+        return chosen
+
+    def refine(self, s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
+        """Damped Gauss-Newton from x (P,) on readings s (N,): parameters and chi^2."""
         resid = s - self.response(x)
         chi2 = float(resid @ resid)
         inten = np.arange(self.dim - 1, x.size, self.dim)
