@@ -11,10 +11,10 @@ import numpy as np
 from .._budget import check_memory
 from .._notice import notice
 from .._validation import as_rng
+from ..antipodal import ANTIPODAL_SPACINGS, pair_offsets
 from ..bounds import SINGULAR_RTOL, bound_covariance
 from ..errors import AntipodalWarning, ConvergenceWarning, InputError, MultimodalWarning
 from ..model import Model
-from ..antipodal import ANTIPODAL_SPACINGS, pair_offsets
 from ..resolution import ANTIPODAL_DOUBT, antipodal_doubts
 from .atoms import cached_default_grid, check_atom_memory, check_grid, default_grid_size
 from .exact import check_exact, enumerate_optimum
