@@ -23,8 +23,6 @@ draws constant to 1e-15 give an ESS of their count, as in ArviZ.
 from __future__ import annotations
 
 import numpy as np
-from scipy.fft import next_fast_len
-from scipy.special import ndtri
 
 __all__ = ["rank_rhat", "ess_bulk", "ess_tail", "split_chains", "normal_scores", "split_rhat"]
 
@@ -39,6 +37,7 @@ def split_chains(x: np.ndarray) -> np.ndarray:
 
 def normal_scores(x: np.ndarray) -> np.ndarray:
     """Normal scores of the average ranks of each parameter's pooled values, (M, n, K)."""
+    from scipy.special import ndtri  # on use: scipy is slow to import
     m, n, k = x.shape
     total = m * n
     rows = np.ascontiguousarray(x.reshape(total, k).T)  # (K, total): sorts along rows
@@ -86,6 +85,7 @@ def rank_rhat(x: np.ndarray) -> np.ndarray:
 
 def _autocov(z: np.ndarray) -> np.ndarray:
     """Autocovariances (M, n, K) of every chain at lags 0..n-1 (FFT, biased: / n)."""
+    from scipy.fft import next_fast_len  # on use: scipy is slow to import
     n = z.shape[1]
     size = next_fast_len(2 * n)
     centred = z - z.mean(axis=1, keepdims=True)

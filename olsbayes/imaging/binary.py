@@ -28,7 +28,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog
 
 from .._store import storable
 from ..errors import ConvergenceWarning
@@ -88,6 +87,7 @@ def sparse_relaxation(
     scene; the L1 term picks a sparse one instead.  Returns shape (K,); all
     zeros, with a ConvergenceWarning, if HiGHS fails.
     """
+    from scipy.optimize import linprog  # on use: scipy is slow to import
     n, k = a.shape
     cost = np.concatenate([np.full(k, weight / i_max), np.full(2 * n, 1.0 / sigma)])
     a_eq = np.hstack([a, -np.eye(n), np.eye(n)])  # A I - e_plus + e_minus = y

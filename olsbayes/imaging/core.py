@@ -29,8 +29,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from scipy.optimize import lsq_linear
-from scipy.special import ndtri
 from threadpoolctl import threadpool_limits
 
 from .._progress import progress_bar
@@ -122,6 +120,7 @@ def image(
 def _image(model: Model, loc: np.ndarray, y: np.ndarray, prior: ImagingPrior,
            opts: ImageOptions, gen: np.random.Generator, progress: bool) -> ImageResult:
     """:func:`image` on checked inputs."""
+    from scipy.optimize import lsq_linear  # on use: scipy is slow to import
     a = design_matrix(model, loc)
     derived = isinstance(prior, Bounded) and prior.i_max is None  # a bound from the readings
     prior = with_data_bound(prior, a, y, model.sigma)
@@ -209,6 +208,7 @@ def _warn_null_space(design: Design, null_warn: float) -> None:
 
 
 def _gaussian(a, y, sigma, design, prior, level):
+    from scipy.special import ndtri  # on use: scipy is slow to import
     k = a.shape[1]
     post = gaussian_posterior(a, y, sigma, np.full(k, prior.mean), np.full(k, prior.sd))
     z = ndtri(0.5 + level / 2)

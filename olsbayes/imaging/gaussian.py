@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 __all__ = ["GaussianPosterior", "gaussian_posterior", "log_evidence"]
 
@@ -57,6 +56,7 @@ def gaussian_posterior(
     prior_mean, prior_sd : ndarray, shape (K,)
         Independent Gaussian prior of each intensity (prior_sd > 0).
     """
+    from scipy.linalg import cho_factor, cho_solve  # on use: scipy is slow to import
     w = 1.0 / prior_sd**2
     prec = a.T @ a / sigma**2 + np.diag(w)
     cf = cho_factor(prec, lower=True)
@@ -70,6 +70,7 @@ def log_evidence(
     a: np.ndarray, y: np.ndarray, sigma: float, prior_mean: np.ndarray, prior_sd: np.ndarray
 ) -> float:
     """log N(y; A m0, sigma^2 1 + A diag(tau^2) A^T), by a Cholesky factor of size N."""
+    from scipy.linalg import solve_triangular  # on use: scipy is slow to import
     n = a.shape[0]
     cov = sigma**2 * np.eye(n) + (a * prior_sd**2) @ a.T
     chol = np.linalg.cholesky(cov)

@@ -22,7 +22,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import expit, log_ndtr
 
 from .._validation import positive_pair
 from ..errors import InputError
@@ -76,6 +75,7 @@ class SweepMoves:
 
 def log_ndtr_diff(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
     """log(Phi(beta) - Phi(alpha)) for alpha <= beta, accurate in both tails."""
+    from scipy.special import log_ndtr  # on use: scipy is slow to import
     upper = alpha > 0  # use Phi(beta) - Phi(alpha) = Phi(-alpha) - Phi(-beta)
     lo = np.where(upper, -beta, alpha)
     hi = np.where(upper, -alpha, beta)
@@ -85,6 +85,7 @@ def log_ndtr_diff(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
 
 def _site(x, r, k, a_k, norm2, sigma, i_max, log_w, log_1mw, spike, rng):
     """Exact draw of (z_k, I_k) given the rest, for every chain; updates x, r in place."""
+    from scipy.special import expit  # on use: scipy is slow to import
     m = x[:, k] + (r @ a_k) / norm2
     s = sigma / np.sqrt(norm2)
     new = truncnorm_1d(m, s, 0.0, i_max, rng=rng)

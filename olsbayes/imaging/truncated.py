@@ -30,7 +30,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import log_ndtr, ndtri_exp
 
 from .._validation import integer, positive_float
 from ..errors import InputError
@@ -108,6 +107,7 @@ def truncnorm_1d(
     Works on the standardised interval ``[alpha, beta]``; intervals in the upper
     tail are mirrored to the lower tail so the log-CDF inversion stays accurate.
     """
+    from scipy.special import log_ndtr, ndtri_exp  # on use: scipy is slow to import
     mean, sd, lower, upper = np.broadcast_arrays(
         *(np.asarray(v, dtype=float) for v in (mean, sd, lower, upper))
     )

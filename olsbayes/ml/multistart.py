@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
 
 from .._validation import integer
 from ..bounds import kink_sources
@@ -97,6 +96,7 @@ def _fit_one(
     Returns x, chi^2, converged, evaluations, and every start's optimum (x (M, P),
     chi^2 (M,), inf where the start did not converge).
     """
+    from scipy.optimize import minimize  # on use: scipy is slow to import
     fun, bounds = _objective(model, s), _bounds(model, k)
     best, nev = None, 0
     xs, chi2s = np.empty((len(starts), model.n_params(k))), np.empty(len(starts))

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from scipy.special import gammaln, xlogy
 
 from .._validation import finite_array, real_array
 from ..errors import InputError
@@ -114,6 +113,7 @@ class Poisson(NoiseModel):
 
     def pointwise(self, mu, data, *, frames=False, theta=None):
         """``s log lambda - lambda - log s!`` per sub-sensor, summed over frames."""
+        from scipy.special import gammaln, xlogy  # on use: scipy is slow to import
         lam = self._lam(np.asarray(mu, float), frames)
         with np.errstate(divide="ignore"):
             term = xlogy(data, np.maximum(lam, _TINY)) - lam - gammaln(data + 1.0)

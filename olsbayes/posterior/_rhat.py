@@ -13,7 +13,6 @@ needs it: parameter by parameter, stopping at the first one above the bound.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import ndtri
 
 from .._mcmc_diagnostics import split_rhat
 from ..circular import circular_mean, wrap_angle
@@ -53,6 +52,7 @@ def _scores(split: np.ndarray) -> np.ndarray:
     the same ranks, hence the same scores, as ranking every draw (which is
     done when fewer than half the draws repeat their predecessor).
     """
+    from scipy.special import ndtri  # on use: scipy is slow to import
     values = split.ravel()
     head = np.empty(values.size, dtype=bool)
     head[:1] = True

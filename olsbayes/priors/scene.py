@@ -26,7 +26,6 @@ The optional noise parameter ``sigma`` (when inferred) is appended last.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import gammaln
 
 from .._validation import as_rng, integer
 from ..circular import wrap_angle
@@ -179,6 +178,7 @@ class ScenePrior:
     @property
     def log_label_factor(self) -> float:
         """log K!: the number of labelled copies of each unordered scene."""
+        from scipy.special import gammaln  # on use: scipy is slow to import
         return float(gammaln(self.n_sources + 1.0))
 
     def _groups(self):

@@ -22,7 +22,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from scipy.special import logsumexp
 
 from .. import measurement
 from ..bounds import bayesian_information, bound_covariance, marginal_information
@@ -74,6 +73,7 @@ def _laplace(model: Model, x: np.ndarray, ll: float, prior: ScenePrior, n_frames
 def noise_work_general(model: Model, data: np.ndarray, prior: ScenePrior, frames: bool
                        ) -> KWork:
     """K = 0: the evidence of no source (extras integrated)."""
+    from scipy.special import logsumexp  # on use: scipy is slow to import
     t0 = time.perf_counter()
     q = len(prior.extra)
     log_like = general_log_likelihood(model, data, 0, frames)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import gammaln, logsumexp
 
 from .._validation import as_rng, integer, positive_float
 
@@ -51,6 +50,7 @@ def importance_log_evidence(
     -------
     (log_z, se) : tuple of float, nats
     """
+    from scipy.special import gammaln, logsumexp  # on use: scipy is slow to import
     n_draws = integer("n_draws", n_draws, low=100)
     df = positive_float("df", df)
     from scipy import stats  # on use: a quarter of the package's import time

@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import log_ndtr
 
 __all__ = ["location_log_weights"]
 
@@ -26,6 +25,7 @@ LOG_2PI = math.log(2.0 * math.pi)
 
 def _log_interval(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """log(Phi(b) - Phi(a)) for a <= b, on the tail that keeps precision; -inf if a >= b."""
+    from scipy.special import log_ndtr  # on use: scipy is slow to import
     flip = a > 0
     lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
     la, lb = log_ndtr(lo), log_ndtr(hi)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import gammaln, log_ndtr
 
 from .._validation import finite_array, positive_float
 from ..bounds import SINGULAR_RTOL, equilibrate
@@ -88,6 +87,7 @@ def laplace_log_evidence(
         log Z (nats); -inf if the prior density is 0 at the mode, NaN if the
         Hessian is not positive definite.
     """
+    from scipy.special import gammaln  # on use: scipy is slow to import
     h = finite_array("hessian", hessian, ndim=2, allow_empty=True)
     if h.shape[0] != h.shape[1]:
         raise InputError(f"hessian must be square; got shape {h.shape}")
@@ -115,6 +115,7 @@ def laplace_log_evidence(
 
 def intensity_support_mass(intensity: np.ndarray, intensity_sd: np.ndarray) -> float:
     """sum_k log Phi(I_k / sd_k): Gaussian mass of each intensity left above 0."""
+    from scipy.special import log_ndtr  # on use: scipy is slow to import
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(intensity_sd > 0, intensity / intensity_sd, np.inf)
     return float(np.sum(log_ndtr(z)))
@@ -168,6 +169,7 @@ def support_log_mass(params: np.ndarray, sd: np.ndarray, prior) -> np.ndarray:
     (the direction of a weak source is not localised).  Shapes: params, sd
     (..., P) -> (...,).
     """
+    from scipy.special import log_ndtr  # on use: scipy is slow to import
     lo, hi = prior.lower, prior.upper
     per = prior.periodic
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -36,7 +36,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
 
 from .._budget import memory_limit
 from .._validation import as_rng, integer, positive_float
@@ -113,6 +112,7 @@ def combine_runs(runs: Sequence[NestedEvidence]) -> RepeatedEvidence:
     -------
     RepeatedEvidence
     """
+    from scipy.special import logsumexp  # on use: scipy is slow to import
     runs = tuple(runs)
     if not runs:
         raise ValueError("combine_runs needs at least one run")

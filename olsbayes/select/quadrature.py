@@ -38,7 +38,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import log_ndtr, ndtr, owens_t
 
 from ..errors import InputError
 from ..priors import CircularUniform, ScenePrior, Uniform
@@ -106,6 +105,7 @@ def qualifies(model, prior: object) -> bool:
 
 def _log_interval(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """log(Phi(hi) - Phi(lo)) for lo <= hi, accurate in both tails."""
+    from scipy.special import log_ndtr  # on use: scipy is slow to import
     upper = lo > 0  # both in the upper tail: use the reflection
     a, b = np.where(upper, -hi, lo), np.where(upper, -lo, hi)
     la, lb = log_ndtr(a), log_ndtr(b)
@@ -120,6 +120,7 @@ def _bvn(h: np.ndarray, k: np.ndarray, rho: np.ndarray) -> np.ndarray:
     ``a_h = (k - rho h) / (h s)``, ``a_k = (h - rho k) / (k s)``, ``s = sqrt(1 - rho^2)``,
     beta = 1/2 when h k < 0 (or one is 0 and h + k < 0).
     """
+    from scipy.special import ndtr, owens_t  # on use: scipy is slow to import
     h = np.where(h == 0, 1e-300, h)
     k = np.where(k == 0, 1e-300, k)
     s = np.sqrt((1 - rho) * (1 + rho))

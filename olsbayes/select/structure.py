@@ -36,7 +36,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import logsumexp
 
 from .._validation import as_rng, nonnegative_float, positive_float
 from ..errors import EvidenceWarning, InputError
@@ -178,6 +177,8 @@ def select_structure(models: Mapping[str, Model], data: np.ndarray, k_max: int =
     -------
     StructureSelection
     """
+    from scipy.special import logsumexp  # on use: scipy is slow to import
+
     from ..priors import default_priors
     from .select import select_k
 

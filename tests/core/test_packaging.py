@@ -54,6 +54,17 @@ def test_python_dash_m_olsbayes_runs_the_command_line():
     assert proc.returncode == 0 and proc.stdout.strip() == f"olsbayes {olsbayes.__version__}"
 
 
+def test_importing_the_package_loads_no_heavy_dependency():
+    """scipy, numba, plotting and Dask load on first use: `import olsbayes` (every command
+    line call, every new worker process) takes about half the CPU it took with scipy."""
+    heavy = ("scipy", "numba", "matplotlib", "arviz", "xarray", "dask", "emcee", "dynesty")
+    script = ("import sys, olsbayes; "
+              f"print(sorted({{m.split('.')[0] for m in sys.modules}} & set({heavy!r})))")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+    assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
+
+
 def test_typed_marker_licence_and_citation_ship_with_the_package():
     assert (PACKAGE / "py.typed").is_file()
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
