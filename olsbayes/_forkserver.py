@@ -24,7 +24,9 @@ import os
 import sys
 import threading
 
-import olsbayes  # noqa: F401  (the package, with numpy, scipy)
+import scipy.linalg  # noqa: F401  (numba's LAPACK calls in the kernels load it)
+
+import olsbayes  # noqa: F401  (the package, with numpy; scipy loads on use)
 import olsbayes.ml._numba.escalate  # noqa: F401
 import olsbayes.ml._numba.exact  # noqa: F401
 import olsbayes.ml._numba.fit  # noqa: F401
