@@ -24,7 +24,12 @@ import os
 import sys
 import threading
 
-import scipy.linalg  # noqa: F401  (numba's LAPACK calls in the kernels load it)
+# what trials load on use: scipy.linalg (numba's LAPACK calls in the kernels), the
+# special functions and optimisers of the estimators and scores; forked workers start
+# with them instead of each importing them anew
+import scipy.linalg  # noqa: F401
+import scipy.optimize  # noqa: F401
+import scipy.special  # noqa: F401
 
 import olsbayes  # noqa: F401  (the package, with numpy; scipy loads on use)
 import olsbayes.ml._numba.escalate  # noqa: F401

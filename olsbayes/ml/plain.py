@@ -155,7 +155,8 @@ def fit_plain(model: Model, data: np.ndarray, n_sources: int, method: str = "fas
     # bounded whatever the number of rows
     parts = [_fit_block(model, s[i : i + BLOCK_ROWS], k, method, g, opts, gen)
              for i in range(0, s.shape[0], BLOCK_ROWS)]
-    x, ll, cov, gap, conv, nev = (np.concatenate([q[j] for q in parts]) for j in range(6))
+    x, ll, cov, gap, conv, nev = parts[0] if len(parts) == 1 else (
+        np.concatenate([q[j] for q in parts]) for j in range(6))
     if warn:
         warn_rivals(method, gap, conv)
         warn_honesty(model, x, ll, cov, method)

@@ -10,6 +10,8 @@ shallow false minima that these kinks create.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ...circular import wrap_angle
@@ -99,6 +101,14 @@ def restart_patterns(k: int, d: int, n: int) -> np.ndarray:
     return np.array(base[:n]).reshape(n, k, d)
 
 
+@functools.lru_cache(maxsize=64)
+def _patterns(k: int, d: int, n: int) -> np.ndarray:
+    """:func:`restart_patterns`, read-only and memoised (every fit of a K uses the same)."""
+    out = restart_patterns(k, d, n)
+    out.flags.writeable = False
+    return out
+
+
 def restart(model: Model, data: np.ndarray, out: FitOutcome, delta: np.ndarray,
             opts: FastOptions) -> FitOutcome:
     """Perturbed restarts around the refined optima, all patterns in one LM run.
@@ -110,7 +120,7 @@ def restart(model: Model, data: np.ndarray, out: FitOutcome, delta: np.ndarray,
     """
     d = model.n_loc
     k = out.x.shape[1] // (d + 1)
-    patterns = restart_patterns(k, d, opts.n_restarts)
+    patterns = _patterns(k, d, opts.n_restarts)
     rows = np.arange(out.x.shape[0])
     if k <= 2:
         rows = np.flatnonzero(out.stalled | np.any(_kinked(model, out.x), axis=-1))
