@@ -40,6 +40,7 @@ import warnings
 import numpy as np
 
 from .antipodal import pair_offsets, source_pairs
+from .circular import wrap_angle
 from .errors import NearResolutionWarning
 
 __all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "min_separation",
@@ -74,14 +75,14 @@ def min_separation(model, x: np.ndarray) -> np.ndarray:
     i, j = source_pairs(k)
     if model.kind == "position":
         d = np.linalg.norm(loc[:, i] - loc[:, j], axis=-1)
+    elif model.kind == "angle":  # the wrapped difference: exact also for close pairs
+        theta = loc[..., 0]
+        d = np.abs(wrap_angle(theta[:, j] - theta[:, i]))
     else:
-        if model.kind == "angle":
-            u = np.stack([np.cos(loc[..., 0]), np.sin(loc[..., 0])], axis=-1)
-        else:
-            lon, lat = loc[..., 0], loc[..., 1]
-            u = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
-                         axis=-1)
-        d = np.arccos(np.clip(np.einsum("tpd,tpd->tp", u[:, i], u[:, j]), -1.0, 1.0))
+        lon, lat = loc[..., 0], loc[..., 1]
+        u = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
+                     axis=-1)
+        d = np.arccos(np.clip(np.sum(u[:, i] * u[:, j], axis=-1), -1.0, 1.0))
     return d.min(axis=1) / sensor_spacing(model)
 
 

@@ -136,7 +136,7 @@ def test_batched_pair_measures_equal_the_per_scene_ones(k):
     full = np.abs(np.angle(np.exp(1j * (theta[:, :, None] - theta[:, None, :]))))
     full[:, np.arange(k), np.arange(k)] = np.inf
     np.testing.assert_allclose(min_separation(model, x), full.min(axis=(1, 2)) / H,
-                               rtol=1e-7, atol=1e-6)  # arccos near 1: ~1e-8 rad
+                               rtol=1e-13, atol=1e-13)
 
 
 def test_four_sources_with_a_near_antipodal_pair_warn():
