@@ -270,6 +270,25 @@ def test_compiled_covariances_match_numpy():
     assert ok == [True, False, False]
 
 
+def test_compiled_equilibration_equals_numpy_to_the_bit():
+    """The kernel equilibrates and scales back as bounds.equilibrate does in numpy."""
+    from olsbayes.bounds import SINGULAR_RTOL, equilibrate
+
+    rng = np.random.default_rng(0)
+    for p, scale in [(2, 1e-6), (4, 1.0), (8, 1e6)]:
+        a = rng.normal(size=(50, p, p)) * scale
+        fisher = a @ a.transpose(0, 2, 1)
+        fisher[::7, 0, :] = fisher[::7, :, 0] = 0.0  # a zero diagonal
+        fisher[::5, 1], fisher[::5, :, 1] = fisher[::5, 0], fisher[::5, :, 0]  # singular
+        f, d = equilibrate(fisher)
+        out = np.empty(f.shape)
+        _fit_kernel._cov_all(np.ascontiguousarray(f), SINGULAR_RTOL, out)
+        want = out * d[:, :, None] * d[:, None, :]
+        got = _fit_kernel.covariances(fisher, SINGULAR_RTOL)
+        np.testing.assert_array_equal(got, want)
+        assert np.isinf(got[::5]).any()
+
+
 def test_kink_cuts_same_best_fewer_evaluations():
     """LM with steps cut at sub-sensor horizons (kinks=True), Fig. 3 at sigma = 0.1:
     per fit the best candidate is as good (to ftol) and the runs that end on a kink

@@ -23,6 +23,25 @@ this package only chooses numba's cache folder (:mod:`olsbayes._jit`).  Every
 kernel is compiled once per machine and cached (``cache=True``).
 """
 
+import numpy as np
+
 from ..._jit import prepare
 
+__all__ = ["kernel_array"]
+
 prepare()  # numba's cache folder, before any kernel module imports numba
+
+
+def kernel_array(a: object, dtype: type) -> np.ndarray:
+    """``a`` as a C-contiguous, writeable array of ``dtype``: a kernel argument.
+
+    ``np.require(a, dtype, ["C", "W"])`` (a copy only where needed), with the common
+    case -- already such an array -- answered without numpy's argument parsing.
+    Writeable and C-ordered, every call has the same array types: one compiled
+    signature per kernel.
+    """
+    if type(a) is np.ndarray and a.dtype == dtype:
+        flags = a.flags
+        if flags.c_contiguous and flags.writeable:
+            return a
+    return np.require(a, dtype, ["C", "W"])

@@ -13,8 +13,8 @@ import math
 import numba
 import numpy as np
 
-from ...bounds import equilibrate
 from ...model import Model
+from . import kernel_array
 from .lm import _arrays, _normal_eq
 from .model import _residual
 
@@ -37,8 +37,7 @@ def chi2_fisher(model: Model, x: np.ndarray, data: np.ndarray) -> tuple[np.ndarr
     ``model.log_likelihood`` and ``model.fisher`` (rounding-level differences).
     """
     kind, code, p, nrm, pos = _arrays(model)
-    xx = np.require(x, np.float64, ["C", "W"])
-    s = np.require(data, np.float64, ["C", "W"])
+    xx, s = kernel_array(x, np.float64), kernel_array(data, np.float64)
     chi2, fisher = np.empty(xx.shape[0]), np.empty((xx.shape[0],) + (xx.shape[1],) * 2)
     _stats_all(kind, code, p, nrm, pos, xx, s, chi2, fisher)
     fisher /= model.sigma**2
@@ -117,14 +116,37 @@ def _cov_all(fisher, rtol, out):  # pragma: no cover - compiled
                 out[i, a, b] = np.inf if singular[a] or singular[b] else acc
 
 
+@numba.njit(cache=True)
+def _cov_equilibrated(fisher, rtol, out):  # pragma: no cover - compiled
+    """:func:`_cov_all` of the equilibrated matrices D F D, scaled back: D (D F D)^+ D.
+
+    D = diag(d), d = diag(F)^-1/2 (1 where a diagonal is not > 0), every product
+    taken in the order of :func:`olsbayes.bounds.equilibrate` and of the numpy
+    scaling, so the numbers are those of equilibrating in numpy.
+    """
+    t, p = fisher.shape[:2]
+    d, f = np.empty((t, p)), np.empty((t, p, p))
+    for i in range(t):
+        for a in range(p):
+            v = fisher[i, a, a]
+            d[i, a] = 1.0 / math.sqrt(v) if v > 0.0 else 1.0
+        for a in range(p):
+            for b in range(p):
+                f[i, a, b] = fisher[i, a, b] * d[i, a] * d[i, b]
+    _cov_all(f, rtol, out)
+    for i in range(t):
+        for a in range(p):
+            for b in range(p):
+                out[i, a, b] = out[i, a, b] * d[i, a] * d[i, b]
+
+
 def covariances(fisher: np.ndarray, rtol: float) -> np.ndarray:
     """Inverse Fisher matrices (T, P, P) by the rule of :func:`olsbayes.bounds.bound_covariance`.
 
     For finite input.  The kernel works on the equilibrated matrices
-    (:func:`olsbayes.bounds.equilibrate`).
+    (:func:`olsbayes.bounds.equilibrate`, compiled alike).
     """
-    f, d = equilibrate(np.asarray(fisher, dtype=np.float64))
-    f = np.require(f, np.float64, ["C", "W"])
+    f = kernel_array(fisher, np.float64)
     out = np.empty(f.shape)
-    _cov_all(f, float(rtol), out)
-    return out * d[:, :, None] * d[:, None, :]
+    _cov_equilibrated(f, float(rtol), out)
+    return out

@@ -37,6 +37,7 @@ import numpy as np
 from ...model import Model
 from ...sensitivity import CosinePower, is_clipped_cosine
 from ..damping import DOWN, EIG_FLOOR, FLOOR, MAX, START, UP
+from . import kernel_array
 from .cells import _cell, _known_cell
 from .horizons import (
     CUT,
@@ -326,16 +327,16 @@ def lm_batch(
     kind, code, p, nrm, pos = _arrays(model)
     t = x0.shape[0]
     x = np.array(x0, dtype=np.float64, order="C")  # always a fresh writeable copy
-    s = np.require(data, np.float64, ["C", "W"])
+    s = kernel_array(data, np.float64)
     fz = (np.zeros(x.shape, np.bool_) if frozen is None
-          else np.require(frozen, np.bool_, ["C", "W"]))
+          else kernel_array(frozen, np.bool_))
     chi2, n_iter = np.empty(t), np.empty(t, np.int64)
     conv, stalled = np.empty(t, np.bool_), np.empty(t, np.bool_)
     group, tol, cells = (1, 0.0, False) if dedupe is None else (
         dedupe.group, dedupe.tol, dedupe.cells)
     base = None if dedupe is None else dedupe.base
     b = (np.full((1, x.shape[1]), np.nan) if base is None
-         else np.require(base, np.float64, ["C", "W"]))
+         else kernel_array(base, np.float64))
     if tol > 0.0 and b.shape[0] != t // group and base is not None:
         raise ValueError(f"lm_batch: {t} rows, group {group}, base rows {b.shape[0]}")
     if base is None and tol > 0.0:

@@ -13,6 +13,7 @@ import numba
 import numpy as np
 
 from ...model import Model
+from . import kernel_array
 from .lm import _arrays
 
 __all__ = ["hop_starts", "on_kink"]
@@ -55,7 +56,7 @@ def hop_starts(model: Model, x: np.ndarray) -> np.ndarray:
         return np.concatenate([phi + np.pi / 2, phi - np.pi / 2])
 
     cross = model.memo("hop_crossings", make)
-    xx = np.require(x, np.float64, ["C", "W"])
+    xx = kernel_array(x, np.float64)
     out = np.empty((xx.shape[0], xx.shape[1], xx.shape[1]))
     _hops(cross, xx, 0.05 * np.pi / model.n_sensors, out)
     return out
@@ -93,7 +94,7 @@ def _kinked(kind, nrm, pos, x, atol, out):  # pragma: no cover - compiled
 def on_kink(model: Model, x: np.ndarray, atol: float) -> np.ndarray:
     """Compiled ``bounds.kink_sources`` for a kinked law: bool (T, K)."""
     kind, _, _, nrm, pos = _arrays(model)
-    xx = np.require(x, np.float64, ["C", "W"])
+    xx = kernel_array(x, np.float64)
     out = np.empty((xx.shape[0], xx.shape[1] // (kind + 2)), np.bool_)
     _kinked(kind, nrm, pos, xx, float(atol), out)
     return out
