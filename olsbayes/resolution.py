@@ -157,13 +157,15 @@ def antipodal_doubts(model, x: np.ndarray) -> np.ndarray:
 
 
 def warn_gaussian_doubts(model, x: np.ndarray, cov: np.ndarray, method: str, *,
-                         stacklevel: int = 2) -> None:
+                         stacklevel: int = 2, doubt: dict[str, np.ndarray] | None = None
+                         ) -> None:
     """One :class:`~olsbayes.errors.NearResolutionWarning` for fits in :func:`gaussian_doubts`.
 
     ``x`` (T, P) and ``cov`` (T, P, P) of a batch of ``method`` fits; nothing is
-    issued when no row is in doubt.
+    issued when no row is in doubt.  ``doubt``: their :func:`gaussian_doubts`, if
+    the caller has it already.
     """
-    doubt = gaussian_doubts(model, x, cov)
+    doubt = gaussian_doubts(model, x, cov) if doubt is None else doubt
     bad = doubt["close"] | doubt["weak"]
     if not bad.any():
         return

@@ -20,13 +20,19 @@ Two things a converged fit can still get wrong, each warned about by
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
 
 from ..errors import ConvergenceWarning, ResolutionWarning
 from ..model import Model
-from ..resolution import warn_gaussian_doubts
+from ..resolution import (
+    RESOLUTION_SPACINGS,
+    WEAK_SDS,
+    min_separation,
+    warn_gaussian_doubts,
+)
 
 __all__ = ["warn_honesty", "gof_pvalues", "GOF_ALPHA"]
 
@@ -42,10 +48,7 @@ def gof_pvalues(model: Model, log_likelihood: np.ndarray, n_params: int
     """
     from scipy.special import chdtr, chdtrc  # the chi-squared cdf and sf, as ufuncs
 
-    n = model.n_sensors
-    const = n * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
-    z = np.maximum(-2.0 * (np.asarray(log_likelihood, dtype=float) + const), 0.0)
-    dof = n - n_params
+    z, dof = _chi2_sigma2(model, log_likelihood), model.n_sensors - n_params
     if dof < 1:
         return z, np.full(z.shape, np.nan), dof
     p = 2.0 * np.minimum(chdtr(dof, z), chdtrc(dof, z))
@@ -74,7 +77,32 @@ def _warn_std(model: Model, x: np.ndarray, cov: np.ndarray, method: str) -> None
     )
 
 
+def _chi2_sigma2(model: Model, log_likelihood: np.ndarray) -> np.ndarray:
+    """chi^2 / sigma^2 from Gaussian log-likelihoods (clipped at 0 against rounding)."""
+    const = model.n_sensors * (np.log(model.sigma) + 0.5 * np.log(2 * np.pi))
+    return np.maximum(-2.0 * (np.asarray(log_likelihood, dtype=float) + const), 0.0)
+
+
+@functools.lru_cache(maxsize=256)
+def _gof_band(dof: int, alpha: float) -> tuple[float, float]:
+    """An interval of chi^2 / sigma^2 whose two-sided p-values all exceed ``alpha``.
+
+    The alpha/2 quantiles of the chi-squared law of ``dof`` degrees of freedom,
+    narrowed by a relative 1e-6 (far beyond the quantiles' rounding): values
+    inside need no p-value, values outside get the exact test.
+    """
+    from scipy.special import chdtri  # the inverse survival function
+
+    lo, hi = chdtri(dof, 1.0 - alpha / 2), chdtri(dof, alpha / 2)
+    return float(lo) * (1 + 1e-6), float(hi) * (1 - 1e-6)
+
+
 def _warn_fit(model: Model, ll: np.ndarray, p: int, method: str) -> None:
+    if model.n_sensors - p >= 1:  # else no p-value: nothing to test
+        lo, hi = _gof_band(model.n_sensors - p, GOF_ALPHA / ll.size)
+        z = _chi2_sigma2(model, ll)
+        if z.min() > lo and z.max() < hi:
+            return  # every row well inside the law's central 1 - alpha
     z, pval, dof = gof_pvalues(model, ll, p)
     bad = pval < GOF_ALPHA / ll.size
     if not np.any(bad):
@@ -102,6 +130,24 @@ def warn_honesty(model: Model, x: np.ndarray, ll: np.ndarray, cov: np.ndarray,
     inverse Fisher matrices of a fit.  Called from :func:`olsbayes.ml.fit_ml` (whose
     caller is the warning's location).
     """
-    _warn_std(model, x, cov, method)
+    doubt, no_std = _doubts(model, x, cov)
+    if no_std.any():
+        _warn_std(model, x, cov, method)
     _warn_fit(model, ll, x.shape[-1], method)
-    warn_gaussian_doubts(model, x, cov, method, stacklevel=4)
+    warn_gaussian_doubts(model, x, cov, method, stacklevel=4, doubt=doubt)
+
+
+def _doubts(model: Model, x: np.ndarray, cov: np.ndarray
+            ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Gaussian doubts of x (T, P) and cov (T, P, P); rows without a finite sd, bool (T,).
+
+    The doubts are those of :func:`~olsbayes.resolution.gaussian_doubts`: the tests
+    of the covariances compiled (the same flags,
+    :func:`olsbayes.ml._numba.resolution.covariance_doubts`), the separations in numpy.
+    """
+    from ._numba.resolution import covariance_doubts  # numba is imported on first use
+
+    finite, weak, no_std = covariance_doubts(x, cov, model.n_loc + 1, WEAK_SDS)
+    sep = min_separation(model, x)
+    return {"close": finite & (sep < RESOLUTION_SPACINGS), "weak": finite & weak,
+            "separation": sep}, no_std

@@ -78,6 +78,21 @@ def test_goodness_of_fit_p_values_follow_the_chi2_law():
     assert np.sum(p < GOF_ALPHA) <= 3
 
 
+@pytest.mark.parametrize("dof", [1, 2, 26, 997, 9996])
+@pytest.mark.parametrize("alpha", [GOF_ALPHA, GOF_ALPHA / 500])
+def test_the_goodness_of_fit_screen_passes_only_what_the_test_passes(dof, alpha):
+    """The screen fit_ml runs first (a band of chi^2 / sigma^2 with no p-value computed)
+    holds only values whose two-sided p-value exceeds alpha, and nearly all of them."""
+    from olsbayes.ml.honesty import _gof_band
+
+    lo, hi = _gof_band(dof, alpha)
+    z = np.linspace(chi2_law.ppf(alpha / 4, dof), chi2_law.isf(alpha / 4, dof), 20001)
+    p = 2 * np.minimum(chi2_law.cdf(z, dof), chi2_law.sf(z, dof))
+    inside = (z > lo) & (z < hi)
+    assert np.all(p[inside] > alpha)
+    assert np.sum((p > alpha) & ~inside) <= 2 + 1e-5 * z.size  # the 1e-6 margins only
+
+
 def test_no_readings_left_over_skips_the_goodness_of_fit():
     _, p, dof = gof_pvalues(MODEL, np.array([0.0]), 30)
     assert dof == 0 and np.isnan(p).all()

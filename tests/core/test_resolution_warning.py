@@ -146,3 +146,36 @@ def test_four_sources_with_a_near_antipodal_pair_warn():
     antipodal = [w for w in seen if w.category is ob.AntipodalWarning]
     assert len(antipodal) == 1
     assert "covered the truth less often than stated" in str(antipodal[0].message)
+
+
+@pytest.mark.parametrize("kind", ["ring", "sphere"])
+def test_compiled_covariance_doubts_equal_the_numpy_ones(kind):
+    """fit_ml's compiled tests of the covariances flag exactly the rows numpy flags:
+    regular, weak, singular (inf), overflowed (NaN), zero and negative variances."""
+    from olsbayes.ml.honesty import _doubts
+
+    if kind == "ring":
+        model, width = ob.Model(ob.Ring(30), sigma=0.01), 2
+    else:
+        model, width = ob.Model(ob.Sphere.fibonacci(60), sigma=0.01), 3
+    rng = np.random.default_rng(4)
+    t, p = 400, 3 * width
+    x = rng.uniform(0.0, 1.0, (t, p))
+    a = rng.normal(size=(t, p, p)) * 0.01
+    cov = a @ a.transpose(0, 2, 1)
+    rows = rng.permutation(t)
+    cov[rows[:40], 1, 1] = np.inf  # a singular Fisher matrix
+    cov[rows[40:80], 0, 1] = np.nan  # an overflowed one
+    cov[rows[80:120], width - 1, width - 1] = 0.0
+    cov[rows[120:160], 2 * width - 1, 2 * width - 1] = -1e-6
+    cov[rows[160:240], width - 1, width - 1] = (x[rows[160:240], width - 1] / WEAK_SDS) ** 2 * (
+        1 + rng.uniform(-1e-15, 1e-15, 80))  # at the weak threshold, to rounding
+    doubt, no_std = _doubts(model, x, cov)
+    want = gaussian_doubts(model, x, cov)
+    for key in ("close", "weak"):
+        np.testing.assert_array_equal(doubt[key], want[key])
+    np.testing.assert_array_equal(doubt["separation"], want["separation"])
+    with np.errstate(invalid="ignore"):
+        sd = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    np.testing.assert_array_equal(no_std, ~np.isfinite(sd).all(axis=1))
+    assert doubt["weak"].any() and not doubt["weak"].all() and no_std.sum() >= 80

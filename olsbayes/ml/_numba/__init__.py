@@ -16,6 +16,7 @@ module             compiles
 ``exact``          the configuration scan (:mod:`olsbayes.ml.exact`)
 ``rivals``         rival optima of angle fits (:mod:`olsbayes.ml.rivals`)
 ``circular``       angle wrapping (:mod:`olsbayes.circular`)
+``resolution``     doubts about Gaussian errors (:mod:`olsbayes.resolution`)
 =================  ==========================================================
 
 numba is imported when a kernel is first needed, not with the package: importing
