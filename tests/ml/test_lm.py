@@ -270,6 +270,41 @@ def test_compiled_covariances_match_numpy():
     assert ok == [True, False, False]
 
 
+def test_compiled_sphere_cosine_evaluation_is_the_general_arithmetic():
+    """The sphere's branch-free evaluation (clipped cosine) gives, bit for bit, the
+    numbers of the general loop's operations: the response rows, the Jacobian's
+    location rows (0 at unlit sensors) and the residual, at poles and horizons too."""
+    from olsbayes.ml._numba import model as kernel_model
+
+    model = ob.Model(ob.Sphere.fibonacci(300), 1e-2)
+    kind, law, p, nrm, pos = _kernel._arrays(model)
+    rng = np.random.default_rng(5)
+    for k in (1, 4):
+        x = np.column_stack([rng.uniform(-4, 4, k), rng.uniform(-1.6, 1.6, k),
+                             rng.uniform(0, 2, k)])
+        x[0, 1] = np.pi / 2  # a source at the pole
+        x, s = x.ravel(), rng.normal(size=300)
+        jt, r = np.zeros((3 * k, 300)), np.zeros(300)
+        chi2 = kernel_model._residual(kind, law, p, nrm, pos, x, s, jt, r, True)
+        want_r = s.copy()
+        for j in range(k):
+            lon, lat, inten = x[3 * j : 3 * j + 3]
+            cla, sla, clo, slo = np.cos(lat), np.sin(lat), np.cos(lon), np.sin(lon)
+            c = cla * clo * nrm[0] + cla * slo * nrm[1] + sla * nrm[2]
+            lit = c > 0
+            g = np.where(lit, c, 0.0)
+            np.testing.assert_array_equal(jt[3 * j + 2], g)
+            np.testing.assert_array_equal(
+                jt[3 * j], np.where(lit, inten * (-cla * slo * nrm[0] + cla * clo * nrm[1]), 0))
+            np.testing.assert_array_equal(jt[3 * j + 1], np.where(
+                lit, inten * (-sla * clo * nrm[0] - sla * slo * nrm[1] + cla * nrm[2]), 0))
+        resp = np.zeros(300)
+        for j in range(k):
+            resp = resp + jt[3 * j + 2] * x[3 * j + 2]
+        np.testing.assert_array_equal(r, s - resp)
+        assert chi2 == pytest.approx(np.sum(r**2), rel=1e-15)
+
+
 def test_compiled_equilibration_equals_numpy_to_the_bit():
     """The kernel equilibrates and scales back as bounds.equilibrate does in numpy."""
     from olsbayes.bounds import SINGULAR_RTOL, equilibrate

@@ -62,11 +62,45 @@ def _eval_ring_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _eval_sphere_cosine(nrm, x, jt, want_jac):  # pragma: no cover - compiled
+    """:func:`_eval_far` for the sphere and the clipped cosine (branch-free loops).
+
+    The same operations in the same order as the general loop (the products of
+    the trigonometric factors taken once per source, as the general loop's
+    left-to-right products take them), so the same numbers, up to the sign of a
+    zero at unlit sensors.
+    """
+    for k in range(x.size // 3):
+        b = 3 * k
+        inten = x[b + 2]
+        cla, sla = math.cos(x[b + 1]), math.sin(x[b + 1])
+        clo, slo = math.cos(x[b]), math.sin(x[b])
+        u0, u1, u2 = cla * clo, cla * slo, sla
+        if want_jac:
+            a0, a1 = -cla * slo, cla * clo  # d c / d lon = a0 n0 + a1 n1
+            b0, b1 = -sla * clo, sla * slo  # d c / d lat = b0 n0 - b1 n1 + cla n2
+            for n in range(nrm.shape[1]):
+                c = u0 * nrm[0, n] + u1 * nrm[1, n] + u2 * nrm[2, n]
+                lit = c > 0.0
+                jt[b + 2, n] = c if lit else 0.0
+                jt[b, n] = inten * (a0 * nrm[0, n] + a1 * nrm[1, n]) if lit else 0.0
+                jt[b + 1, n] = (inten * (b0 * nrm[0, n] - b1 * nrm[1, n] + cla * nrm[2, n])
+                                if lit else 0.0)
+        else:
+            for n in range(nrm.shape[1]):
+                c = u0 * nrm[0, n] + u1 * nrm[1, n] + u2 * nrm[2, n]
+                jt[b + 2, n] = c if c > 0.0 else 0.0
+
+
+@numba.njit(cache=True)
 def _eval_far(kind, law, p, nrm, x, jt, want_jac):  # pragma: no cover - compiled
     """Rows of jt (P, N): g(c) per source, and with want_jac the location rows."""
     d1 = 2 if kind == 0 else 3
     if kind == 0 and law == _LAW_COSINE:
         _eval_ring_cosine(nrm, x, jt, want_jac)
+        return
+    if kind == 1 and law == _LAW_COSINE:
+        _eval_sphere_cosine(nrm, x, jt, want_jac)
         return
     for k in range(x.size // d1):
         b = k * d1
