@@ -286,7 +286,6 @@ def test_compiled_sphere_cosine_evaluation_is_the_general_arithmetic():
         x, s = x.ravel(), rng.normal(size=300)
         jt, r = np.zeros((3 * k, 300)), np.zeros(300)
         chi2 = kernel_model._residual(kind, law, p, nrm, pos, x, s, jt, r, True)
-        want_r = s.copy()
         for j in range(k):
             lon, lat, inten = x[3 * j : 3 * j + 3]
             cla, sla, clo, slo = np.cos(lat), np.sin(lat), np.cos(lon), np.sin(lon)
