@@ -11,10 +11,19 @@ process that one of the package's kernels is compiled rather than loaded, since
 compiling takes far longer than loading (``olsbayes compile`` does it ahead of
 time; :func:`olsbayes._notice.notice`, which the command line's ``--quiet``
 silences).
+
+numba stamps a cached kernel with the source of its own module only, yet the
+machine code holds every kernel it calls from other modules: after an edit or an
+upgrade that changed a called kernel's module alone, the caller would load stale
+code.  :func:`prepare` therefore stamps the cache entries of the package's kernels
+with all their modules' sources (:func:`kernels_stamp`): any change to one compiles
+them all again.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
 import sys
 import tempfile
@@ -24,9 +33,10 @@ from pathlib import Path
 from ._notice import notice
 from .errors import OlsBayesWarning
 
-__all__ = ["prepare", "cache_location", "announced"]
+__all__ = ["prepare", "cache_location", "announced", "kernels_stamp"]
 
-_KERNELS = Path(__file__).resolve().parent / "ml" / "_numba"
+_PACKAGE = Path(__file__).resolve().parent
+_KERNELS = _PACKAGE / "ml" / "_numba"
 _STATE: dict[str, object] = {}  # what prepare() decided, once per process
 
 
@@ -107,6 +117,8 @@ def prepare() -> None:
         config.reload_config()
     from numba.core import event
 
+    _stamp_package_kernels()
+
     saving = how not in ("none", "prebuilt, read-only")
 
     class CompileNotice(event.Listener):
@@ -153,7 +165,7 @@ def _no_save_locator():
 
     base = getattr(caching, "InTreeCacheLocator", None) or caching._InTreeCacheLocator
 
-    class NoSaveLocator(base):
+    class NoSaveLocator(_stamped(base)):
         def ensure_cache_path(self):  # read-only: nothing to make
             pass
 
@@ -162,6 +174,62 @@ def _no_save_locator():
             return cls(py_func, py_file) if os.path.exists(py_file) else None
 
     return NoSaveLocator
+
+
+@functools.lru_cache(maxsize=1)
+def kernels_stamp() -> str:
+    """sha256 over the sources of the package's modules with cached kernels (hex).
+
+    Read once per process, when the first kernel loads or compiles.
+    """
+    digest = hashlib.sha256()
+    for path in sorted(_PACKAGE.rglob("*.py")):
+        text = path.read_bytes()
+        if path != Path(__file__).resolve() and b"@numba.njit(cache=" in text:
+            digest.update(path.relative_to(_PACKAGE).as_posix().encode() + b"\0" + text)
+    return digest.hexdigest()
+
+
+def _ours(py_file: object) -> bool:
+    """Whether a source file belongs to the package."""
+    try:
+        return Path(str(py_file)).resolve().is_relative_to(_PACKAGE)
+    except (OSError, ValueError):
+        return False
+
+
+def _stamped(base: type) -> type:
+    """numba's cache locator ``base``, stamping the package's kernels with all their sources."""
+
+    class Stamped(base):
+        def get_source_stamp(self):
+            own = super().get_source_stamp()
+            if not _ours(getattr(self, "_py_file", None)):
+                return own  # another library's function: numba's own stamp
+            return own, kernels_stamp()
+
+    Stamped.__name__ = Stamped.__qualname__ = f"Stamped{base.__name__}"
+    return Stamped
+
+
+def _stamp_package_kernels() -> None:
+    """Stamp the package's cache entries with all kernel sources (numba's locators, wrapped).
+
+    In this process only: the locators numba tries for a function are replaced by
+    wrapped ones, which differ from numba's only for the package's files.  The
+    locators of a read-only install (``NUMBA_CACHE_LOCATOR_CLASSES``) are stamped
+    already; one the user named is left alone.
+    """
+    if os.environ.get("NUMBA_CACHE_LOCATOR_CLASSES"):
+        return
+    from numba.core import caching
+
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
+    classes = getattr(impl, "_locator_classes", None)
+    if not isinstance(classes, list):  # another numba layout: numba's own stamps
+        return
+    impl._locator_classes = [c if c.__name__.startswith("Stamped") else _stamped(c)
+                             for c in classes]
 
 
 def __getattr__(name: str):

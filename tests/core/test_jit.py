@@ -118,3 +118,34 @@ def test_other_numba_functions_compile_beside_the_notice(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["42", "42"]
     assert "compiling numerical kernels" not in proc.stderr  # not a package kernel
+
+
+def test_the_kernels_stamp_covers_every_kernel_module(tmp_path, monkeypatch):
+    """The stamp hashes each module with cached kernels, and only those."""
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "a.py").write_text("@numba.njit(cache=True)\ndef f(x):\n    return x\n")
+    (pkg / "sub" / "b.py").write_text("@numba.njit(cache=True)\ndef g(x):\n    return x\n")
+    (pkg / "c.py").write_text("x = 1\n")
+    monkeypatch.setattr(jit, "_PACKAGE", pkg)
+    stamps = []
+    for edit in (None, pkg / "c.py", pkg / "sub" / "b.py", pkg / "a.py"):
+        if edit is not None:
+            edit.write_text(edit.read_text() + "# edited\n")
+        jit.kernels_stamp.cache_clear()
+        stamps.append(jit.kernels_stamp())
+    jit.kernels_stamp.cache_clear()
+    assert stamps[0] == stamps[1]  # not a kernel module
+    assert len(set(stamps[1:])) == 3  # each kernel module's edit changes it
+
+
+def test_package_kernels_are_stamped_with_every_kernel_module():
+    """A cached kernel is stamped with all kernel sources, so an edit or an upgrade of a
+    kernel it calls from another module compiles it again instead of loading stale code."""
+    from olsbayes.ml._numba import model as kernel_model
+
+    jit.prepare()
+    stamp = kernel_model._residual._cache._impl.locator.get_source_stamp()
+    assert isinstance(stamp, tuple) and stamp[1] == jit.kernels_stamp()
+    files = {p.name for p in (Path(jit.__file__).parent / "ml" / "_numba").glob("*.py")}
+    assert {"lm.py", "model.py", "fit.py"} <= files
