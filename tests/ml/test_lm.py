@@ -271,37 +271,35 @@ def test_compiled_covariances_match_numpy():
 
 
 def test_compiled_sphere_cosine_evaluation_is_the_general_arithmetic():
-    """The sphere's branch-free evaluation (clipped cosine) gives, bit for bit, the
-    numbers of the general loop's operations: the response rows, the Jacobian's
-    location rows (0 at unlit sensors) and the residual, at poles and horizons too."""
-    from olsbayes.ml._numba import model as kernel_model
-
+    """The sphere's branch-free evaluation (clipped cosine), through the fit's statistics
+    kernel: chi^2 bit for bit that of the general loop's operations (response rows summed
+    in order), the Fisher matrix that of its Jacobian (0 at unlit sensors), to rounding;
+    at a pole too."""
     model = ob.Model(ob.Sphere.fibonacci(300), 1e-2)
-    kind, law, p, nrm, pos = _kernel._arrays(model)
+    nrm = model.array.normals.T
     rng = np.random.default_rng(5)
     for k in (1, 4):
         x = np.column_stack([rng.uniform(-4, 4, k), rng.uniform(-1.6, 1.6, k),
                              rng.uniform(0, 2, k)])
         x[0, 1] = np.pi / 2  # a source at the pole
         x, s = x.ravel(), rng.normal(size=300)
-        jt, r = np.zeros((3 * k, 300)), np.zeros(300)
-        chi2 = kernel_model._residual(kind, law, p, nrm, pos, x, s, jt, r, True)
+        chi2, fisher = _fit_kernel.chi2_fisher(model, x[None], s[None])
+        resp, rows = np.zeros(300), []
         for j in range(k):
             lon, lat, inten = x[3 * j : 3 * j + 3]
             cla, sla, clo, slo = np.cos(lat), np.sin(lat), np.cos(lon), np.sin(lon)
             c = cla * clo * nrm[0] + cla * slo * nrm[1] + sla * nrm[2]
             lit = c > 0
-            g = np.where(lit, c, 0.0)
-            np.testing.assert_array_equal(jt[3 * j + 2], g)
-            np.testing.assert_array_equal(
-                jt[3 * j], np.where(lit, inten * (-cla * slo * nrm[0] + cla * clo * nrm[1]), 0))
-            np.testing.assert_array_equal(jt[3 * j + 1], np.where(
-                lit, inten * (-sla * clo * nrm[0] - sla * slo * nrm[1] + cla * nrm[2]), 0))
-        resp = np.zeros(300)
-        for j in range(k):
-            resp = resp + jt[3 * j + 2] * x[3 * j + 2]
-        np.testing.assert_array_equal(r, s - resp)
-        assert chi2 == pytest.approx(np.sum(r**2), rel=1e-15)
+            rows += [np.where(lit, inten * (-cla * slo * nrm[0] + cla * clo * nrm[1]), 0),
+                     np.where(lit, inten * (-sla * clo * nrm[0] - sla * slo * nrm[1]
+                                            + cla * nrm[2]), 0),
+                     np.where(lit, c, 0.0)]
+            resp = resp + rows[-1] * inten
+        r = s - resp
+        assert chi2[0] == np.cumsum(r * r)[-1]  # a plain sum in order
+        jac = np.array(rows)
+        np.testing.assert_allclose(fisher[0], jac @ jac.T / 1e-4, rtol=1e-12,
+                                   atol=1e-12 * np.abs(fisher[0]).max())
 
 
 def test_compiled_equilibration_equals_numpy_to_the_bit():
