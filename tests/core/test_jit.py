@@ -145,7 +145,11 @@ def test_package_kernels_are_stamped_with_every_kernel_module():
     from olsbayes.ml._numba import model as kernel_model
 
     jit.prepare()
-    stamp = kernel_model._residual._cache._impl.locator.get_source_stamp()
+    locator = kernel_model._residual._cache._impl.locator
+    if os.environ.get("NUMBA_CACHE_LOCATOR_CLASSES") and jit.cache_location()[0] not in (
+            "prebuilt, read-only", "none"):
+        pytest.skip("numba's cache locators are the user's choice")
+    stamp = locator.get_source_stamp()
     assert isinstance(stamp, tuple) and stamp[1] == jit.kernels_stamp()
     files = {p.name for p in (Path(jit.__file__).parent / "ml" / "_numba").glob("*.py")}
     assert {"lm.py", "model.py", "fit.py"} <= files
