@@ -91,9 +91,10 @@ def _gof_band(dof: int, alpha: float) -> tuple[float, float]:
     narrowed by a relative 1e-6 (far beyond the quantiles' rounding): values
     inside need no p-value, values outside get the exact test.
     """
-    from scipy.special import chdtri  # the inverse survival function
+    from scipy.special import chdtri, gammaincinv  # inverse survival function and cdf
 
-    lo, hi = chdtri(dof, 1.0 - alpha / 2), chdtri(dof, alpha / 2)
+    # the lower quantile from the cdf itself: 1 - alpha / 2 would round for tiny alpha
+    lo, hi = 2.0 * gammaincinv(dof / 2, alpha / 2), chdtri(dof, alpha / 2)
     return float(lo) * (1 + 1e-6), float(hi) * (1 - 1e-6)
 
 

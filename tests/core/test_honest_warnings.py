@@ -79,7 +79,7 @@ def test_goodness_of_fit_p_values_follow_the_chi2_law():
 
 
 @pytest.mark.parametrize("dof", [1, 2, 26, 997, 9996])
-@pytest.mark.parametrize("alpha", [GOF_ALPHA, GOF_ALPHA / 500])
+@pytest.mark.parametrize("alpha", [GOF_ALPHA, GOF_ALPHA / 500, GOF_ALPHA / 1e9])
 def test_the_goodness_of_fit_screen_passes_only_what_the_test_passes(dof, alpha):
     """The screen fit_ml runs first (a band of chi^2 / sigma^2 with no p-value computed)
     holds only values whose two-sided p-value exceeds alpha, and nearly all of them."""
