@@ -51,7 +51,7 @@ def fast_fits() -> int:
         warnings.simplefilter("ignore")
         for model, x, k, methods in _cases():
             if "fast" in methods:
-                fit_ml(model, model.response(x), k, "fast", rng=0, warn=False)
+                fit_ml(model, model.response(x), k, "fast", rng=0)
                 n += 1
     return n
 
@@ -60,7 +60,9 @@ def compile_kernels(progress: Callable[[int, int], None] | None = None) -> int:
     """Run one small fit per compiled specialisation and one small image.
 
     Each fit runs on one data vector and on a batch of two, since both shapes reach
-    kernels of their own (e.g. the one-lane and the blocked K-tuple scans).
+    kernels of their own (e.g. the one-lane and the blocked K-tuple scans), and as a
+    default call does: with the checks behind its warnings (silenced here), which run
+    kernels of their own too.
 
     Parameters
     ----------
@@ -81,7 +83,7 @@ def compile_kernels(progress: Callable[[int, int], None] | None = None) -> int:
             for method in methods:
                 opts = MultistartOptions(n_starts=2) if method == "multistart" else None
                 for d in (data, np.stack([data, data])):
-                    fit_ml(model, d, k, method, options=opts, rng=0, warn=False)
+                    fit_ml(model, d, k, method, options=opts, rng=0)
                     n += 1
             if progress is not None:
                 progress(i + 1, len(cases) + 1)
