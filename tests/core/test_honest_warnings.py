@@ -79,18 +79,26 @@ def test_goodness_of_fit_p_values_follow_the_chi2_law():
 
 
 @pytest.mark.parametrize("dof", [1, 2, 26, 997, 9996])
-@pytest.mark.parametrize("alpha", [GOF_ALPHA, GOF_ALPHA / 500, GOF_ALPHA / 1e9])
+@pytest.mark.parametrize("alpha", [GOF_ALPHA, GOF_ALPHA / 500, 1.5e-12])
 def test_the_goodness_of_fit_screen_passes_only_what_the_test_passes(dof, alpha):
     """The screen fit_ml runs first (a band of chi^2 / sigma^2 with no p-value computed)
-    holds only values whose two-sided p-value exceeds alpha, and nearly all of them."""
+    holds only values whose two-sided p-value exceeds alpha, and all but those within
+    its 1e-6 margins.  Probed at relative offsets 1e-10..1e-2 around each quantile
+    (the lower one of 1 degree of freedom is ~1e-24) and across the middle; at the
+    level 1.5e-12, 1 - alpha / 2 rounds down, so a lower quantile taken from the
+    survival function would be 1e-4 too low."""
     from olsbayes.ml.honesty import _gof_band
 
     lo, hi = _gof_band(dof, alpha)
-    z = np.linspace(chi2_law.ppf(alpha / 4, dof), chi2_law.isf(alpha / 4, dof), 20001)
+    r = np.logspace(-10, -2, 400)
+    edges = [q * (1 + np.concatenate([-r, r])) for q in
+             (chi2_law.ppf(alpha / 2, dof), chi2_law.isf(alpha / 2, dof))]
+    z = np.concatenate(edges + [np.linspace(edges[0].max(), edges[1].min(), 2001)])
     p = 2 * np.minimum(chi2_law.cdf(z, dof), chi2_law.sf(z, dof))
     inside = (z > lo) & (z < hi)
     assert np.all(p[inside] > alpha)
-    assert np.sum((p > alpha) & ~inside) <= 2 + 1e-5 * z.size  # the 1e-6 margins only
+    near = np.minimum(np.abs(z / edges[0].mean() - 1), np.abs(z / edges[1].mean() - 1))
+    assert np.all(inside[(p > alpha) & (near > 2e-6)])  # only the margins are left out
 
 
 def test_no_readings_left_over_skips_the_goodness_of_fit():
