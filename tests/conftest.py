@@ -5,6 +5,8 @@
   has a fixed, distinct stream without sharing one.
 * Every compiled kernel is built once per session before the first test (numba
   compiles on first call), so that no single test is charged with the compilation.
+  The tests run in pytest-xdist workers (``addopts`` in pyproject.toml; ``-n 0``: one
+  process): each worker is a session of its own and builds or loads the kernels once.
 * The ``slow`` marker (``-m "not slow"`` skips the longest end-to-end tests).
 * The numpy references of the compiled kernels live in ``tests/reference``: import
   them as ``from reference.<module> import ...`` (this folder is on ``sys.path``
