@@ -6,6 +6,7 @@ subsets as the numpy statements they replace.
   tuples must be exactly eigvalsh's, also for near-collinear, repeated and dead atoms.
 * The farthest-point sampling keeps each chosen atom's distances for the later
   subsets: the subsets must be those of the sampling that recomputes them.
+* The tuples of a coarse subset come from one memoised array: itertools' order.
 """
 
 from __future__ import annotations
@@ -103,3 +104,11 @@ def test_sampling_with_kept_distances_equals_recomputing_them(case, monkeypatch)
             assert len(got) == len(want)
             for a, b in zip(got, want):
                 np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("n,k", [(5, 2), (20, 4), (27, 3), (100, 2), (9, 9), (3, 4)])
+def test_combinations_are_itertools_in_lexicographic_order(n, k):
+    got = tuples._combinations(n, k)
+    want = np.array(list(itertools.combinations(range(n), k)), dtype=np.int64).reshape(-1, k)
+    np.testing.assert_array_equal(got, want)
+    assert got.dtype == np.int64 and not got.flags.writeable  # shared by the plans
