@@ -41,11 +41,11 @@ INTENSITIES = [1.0, 0.8, 0.9, 0.7]
 _CHILD = """
 import json, sys, time, warnings
 import olsbayes as ob
-from olsbayes.ml.fast import tuples
+from olsbayes.ml.fast import coarse
 warnings.simplefilter("ignore")
 sampling, k, side = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 if sampling == "plain":
-    tuples.LAZY_SAMPLING_ENTRIES = 10**18
+    coarse.LAZY_SAMPLING_ENTRIES = 10**18
 small = ob.Model(ob.Plate.grid(4, 4, 1.0), 1e-2)
 scene = ob.Scene(positions=[[0.3, 0.2, 2.0]], intensities=[1.0])
 ob.fit_ml(small, small.simulate(scene, rng=1), n_sources=1)

@@ -88,7 +88,7 @@ def test_tuple_plans_each_distinct_subset_once():
     """The farthest-point subsets requested (24 at K = 4 on a 30-ring's default grid,
     some of them coinciding) are all planned, each distinct one exactly once."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
-    from olsbayes.ml.fast.tuples import coarse_size, coarse_subsets
+    from olsbayes.ml.fast.coarse import coarse_size, coarse_subsets
 
     model = ob.Model(ob.Ring(30), 0.01)
     g = atoms(model, cached_default_grid(model))
@@ -104,14 +104,14 @@ def test_coarse_subsets_are_distinct_on_a_uniform_ring(lazy, monkeypatch):
     give 3 distinct farthest-point subsets; the repeats are drawn again from other
     seeds of their slots: 24 distinct subsets, each a farthest-point sampling."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
-    from olsbayes.ml.fast import tuples
+    from olsbayes.ml.fast import coarse
 
     model = ob.Model(ob.Ring(1000), 0.01)
     g = np.array(atoms(model, cached_default_grid(model)))
     if lazy:
-        monkeypatch.setattr(tuples, "LAZY_SAMPLING_ENTRIES", g.size - 1)
-    size = tuples.coarse_size(*g.shape, 4, 5_000)
-    subsets = tuples.coarse_subsets(g, size, 24)
+        monkeypatch.setattr(coarse, "LAZY_SAMPLING_ENTRIES", g.size - 1)
+    size = coarse.coarse_size(*g.shape, 4, 5_000)
+    subsets = coarse.coarse_subsets(g, size, 24)
     assert len({tuple(s) for s in subsets}) == len(subsets) == 24
     u = g / np.linalg.norm(g, axis=1)[:, None]
     far = np.sqrt(np.maximum(2.0 - 2.0 * u @ u.T, 0.0))  # unit-atom distances (M, M)
@@ -297,7 +297,7 @@ def test_gram_farthest_point_sampling_is_farthest_point_sampling():
     GRAM_SAMPLING_ENTRIES entries): each atom added is (to rounding) the live atom
     farthest from those chosen before it, as the unit-atom sampling picks them."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
-    from olsbayes.ml.fast.tuples import coarse_subsets
+    from olsbayes.ml.fast.coarse import coarse_subsets
 
     model = ob.Model(ob.Sphere.fibonacci(100), 1e-2)
     g = atoms(model, cached_default_grid(model))
@@ -325,16 +325,16 @@ def test_large_unit_atom_farthest_point_sampling_is_farthest_point_sampling(lazy
     date lazily: each atom added is still (to rounding) the live atom farthest from
     those chosen before it; dead atoms are never chosen."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
-    from olsbayes.ml.fast import tuples
-    from olsbayes.ml.fast.tuples import GRAM_SAMPLING_ATOMS, GRAM_SAMPLING_ENTRIES, coarse_subsets
+    from olsbayes.ml.fast import coarse
+    from olsbayes.ml.fast.coarse import GRAM_SAMPLING_ATOMS, GRAM_SAMPLING_ENTRIES, coarse_subsets
 
     model = ob.Model(ob.Plate.grid(12, 12, 1.0), 1e-2)
     g = atoms(model, cached_default_grid(model))
     g = np.vstack([np.zeros((3, g.shape[1])), g])  # atoms no sub-sensor sees: never chosen
     assert g.shape[0] > GRAM_SAMPLING_ATOMS and g.size > GRAM_SAMPLING_ENTRIES
     if lazy:
-        monkeypatch.setattr(tuples, "LAZY_SAMPLING_ENTRIES", g.size - 1)
-        monkeypatch.setattr(tuples, "_unit_distances", None)  # the lazy path needs none
+        monkeypatch.setattr(coarse, "LAZY_SAMPLING_ENTRIES", g.size - 1)
+        monkeypatch.setattr(coarse, "_unit_distances", None)  # the lazy path needs none
     norm = np.linalg.norm(g, axis=1)
     live = np.flatnonzero(norm > 1e-12 * norm.max())
     u = g[live] / norm[live, None]
@@ -357,7 +357,7 @@ def test_coarse_size_is_the_largest_size_within_the_budget():
     import itertools
     from math import comb
 
-    from olsbayes.ml.fast.tuples import coarse_size
+    from olsbayes.ml.fast.coarse import coarse_size
 
     for m, n, k, budget in itertools.product([3, 10, 128, 1024, 2048], [2, 16, 30, 300],
                                              range(2, 9), [1, 10, 3_000, 5_000, 10**6]):

@@ -1,4 +1,4 @@
-"""The set-up of the K-tuple search (olsbayes.ml.fast.tuples): the same tuples and
+"""The set-up of the K-tuple search (olsbayes.ml.fast.tuples and .coarse): the same tuples and
 subsets as the numpy statements they replace.
 
 * ``_regular`` keeps a tuple when its Gram matrix has ``w_min > 1e-10 w_max``
@@ -19,7 +19,7 @@ import pytest
 
 import olsbayes as ob
 from olsbayes.ml.atoms import atoms, cached_default_grid
-from olsbayes.ml.fast import tuples
+from olsbayes.ml.fast import coarse, tuples
 
 
 def _eigvalsh_keep(a: np.ndarray) -> np.ndarray:
@@ -72,12 +72,12 @@ def test_cofactor_determinants_equal_lu(k, rng):
 def _numpy_subsets(g, size, n_sets):
     """coarse_subsets' plain farthest-point sampling, every distance recomputed."""
     norm = np.linalg.norm(g, axis=1)
-    live = tuples._live(norm)
+    live = coarse._live(norm)
     u = g[live] / norm[live, None]
     size = min(size, live.size)
     out = []
     for j in range(n_sets):
-        for rank in tuples._seed_ranks(j, live.size, n_sets):
+        for rank in coarse._seed_ranks(j, live.size, n_sets):
             chosen, dist = [rank], np.linalg.norm(u - u[rank], axis=1)
             for _ in range(size - 1):
                 chosen.append(int(np.argmax(dist)))
@@ -95,12 +95,12 @@ def test_sampling_with_kept_distances_equals_recomputing_them(case, monkeypatch)
              "sphere": ob.Model(ob.Sphere.fibonacci(60), 1e-2),
              "plate": ob.Model(ob.Plate.grid(6, 6, 1.0), 1e-2)}[case]
     g = atoms(model, cached_default_grid(model))
-    assert g.size <= tuples.GRAM_SAMPLING_ENTRIES  # the plain route
+    assert g.size <= coarse.GRAM_SAMPLING_ENTRIES  # the plain route
     for size, n_sets in ((20, 24), (60, 3)):
         want = _numpy_subsets(g, size, n_sets)
-        for room in (tuples.DISTANCE_ROWS_BYTES, 8 * g.shape[0] * 5):  # all rows kept; 5
-            monkeypatch.setattr(tuples, "DISTANCE_ROWS_BYTES", room)
-            got = tuples.coarse_subsets(g, size, n_sets)
+        for room in (coarse.DISTANCE_ROWS_BYTES, 8 * g.shape[0] * 5):  # all rows kept; 5
+            monkeypatch.setattr(coarse, "DISTANCE_ROWS_BYTES", room)
+            got = coarse.coarse_subsets(g, size, n_sets)
             assert len(got) == len(want)
             for a, b in zip(got, want):
                 np.testing.assert_array_equal(a, b)
