@@ -21,7 +21,7 @@ from ..model import Model
 
 __all__ = ["default_grid", "default_grid_size", "cached_default_grid", "check_grid",
            "check_atom_memory", "atoms", "grid_step", "NEIGHBOUR", "RING_ATOMS_MAX",
-           "SPHERE_ATOMS", "NOTICE_ENTRIES"]
+           "SPHERE_ATOMS", "GRAM_ATOMS", "NOTICE_ENTRIES", "NOTICE_GRAM"]
 
 #: Normalised-atom correlation above which two atoms count as one basin (the
 #: neighbourhood of an atom in the searches of the fast fit).
@@ -34,6 +34,10 @@ NEIGHBOUR = 0.95
 #: the caps keep the search's cost per fit linear in N.
 RING_ATOMS_MAX = 1024
 SPHERE_ATOMS = (1024, 2048)
+
+#: Largest M for which the fast search forms the atoms' Gram matrix (M^2 doubles) for
+#: its projections: every default ring and sphere grid (:data:`SPHERE_ATOMS`).
+GRAM_ATOMS = 2048
 
 
 def _ring_grid(model: Model, density: float) -> np.ndarray:
@@ -149,11 +153,21 @@ _ATOM_GRIDS = 8
 #: built: with the fast search's unit atoms and coarse subsets beside them the first
 #: fit then takes more than ~5 s (a 40 x 40 plate, 62,410 x 1,600 entries: 6-8 s).
 NOTICE_ENTRIES = 50_000_000
+#: So do atoms whose Gram matrix (at most :data:`GRAM_ATOMS` atoms) costs more
+#: multiply-adds (M^2 N) than this: it is most of the first fit's set-up on a large
+#: sphere (10,000 sub-sensors, 2,048 atoms: 4.2e10, a first fit of 3.2 s CPU on an
+#: idle machine and up to 15 s on a busy one; 20,000: 7.6 s idle).
+NOTICE_GRAM = 2e10
+
+
+def _setup_is_long(m: int, n: int) -> bool:
+    """Whether the fast search's set-up on M atoms of N sub-sensors takes seconds."""
+    return m * n > NOTICE_ENTRIES or (m <= GRAM_ATOMS and float(m) * m * n > NOTICE_GRAM)
 
 
 def _responses(model: Model, grid: np.ndarray) -> np.ndarray:
-    """The atoms of ``grid`` (read-only), with one stderr line when they are many."""
-    if grid.shape[0] * model.n_sensors > NOTICE_ENTRIES:
+    """The atoms of ``grid`` (read-only), with one stderr line when their set-up is long."""
+    if _setup_is_long(grid.shape[0], model.n_sensors):
         notice(f"building the search over {grid.shape[0]:,} candidate locations x "
                f"{model.n_sensors:,} sub-sensors (once per model and grid; seconds) ...")
     return _readonly(model.response(np.column_stack([grid, np.ones(grid.shape[0])])))
@@ -164,7 +178,8 @@ def atoms(model: Model, grid: np.ndarray) -> np.ndarray:
 
     Cached on the model (:meth:`~olsbayes.Model.memo`) per grid content, since a
     model's response never changes; the model's own default grid is found by identity.
-    Building more than :data:`NOTICE_ENTRIES` entries prints one line on stderr.
+    Building more than :data:`NOTICE_ENTRIES` entries, or atoms whose Gram matrix
+    costs more than :data:`NOTICE_GRAM` multiply-adds, prints one line on stderr.
     """
     if grid is model.memo("default_grid"):
         return model.memo("default_atoms", lambda: _responses(model, grid))

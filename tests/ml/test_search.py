@@ -258,7 +258,7 @@ def test_blocked_tuple_search_equals_per_trial(k):
 
 
 def test_search_gram_route_equals_atom_route(monkeypatch):
-    """The search's projections through the atoms' Gram matrix (M <= _GRAM_ATOMS) pick
+    """The search's projections through the atoms' Gram matrix (M <= GRAM_ATOMS) pick
     the same candidates as projecting with the atoms themselves (rounding only)."""
     from olsbayes.ml.atoms import atoms, cached_default_grid
     from olsbayes.ml.fast import search
@@ -268,7 +268,7 @@ def test_search_gram_route_equals_atom_route(monkeypatch):
     data = model.simulate(ob.Scene(directions=ang, intensities=[1.0, 0.8, 0.6]), rng=4, size=200)
     g = atoms(model, cached_default_grid(model))
     a = search.grid_search(g, data, 3, search_options(3))
-    monkeypatch.setattr(search, "_GRAM_ATOMS", 0)
+    monkeypatch.setattr(search, "GRAM_ATOMS", 0)
     monkeypatch.setattr(search, "_VIEWS", {})
     b = search.grid_search(g, data, 3, search_options(3))
     np.testing.assert_array_equal(a[0], b[0])
@@ -397,3 +397,25 @@ def test_a_large_search_set_up_says_so_once_per_model(monkeypatch, capsys):
         ob.fit_ml(model, data, n_sources=1)
     (line,) = building(capsys.readouterr().err)
     assert "candidate locations x 40 sub-sensors" in line
+
+
+def test_a_search_with_a_costly_gram_matrix_says_so_once_per_model(monkeypatch, capsys):
+    """Atoms of at most GRAM_ATOMS whose Gram matrix costs more than NOTICE_GRAM
+    multiply-adds (M^2 N; a 10,000-sphere's first fit) print the set-up line too, once
+    per model; beyond GRAM_ATOMS (no Gram matrix) only the atoms' entries count."""
+    from olsbayes.ml import atoms as atoms_module
+
+    model = ob.Model(ob.Sphere.fibonacci(40), 1e-2)
+    m = atoms_module.cached_default_grid(model).shape[0]
+    data = model.simulate(ob.Scene(directions=[[0.3, 0.2]], intensities=[1.0]), rng=1)
+    monkeypatch.setattr(atoms_module, "NOTICE_GRAM", float(m * m * 40 - 1))
+    for _ in range(2):
+        ob.fit_ml(model, data, n_sources=1)
+    err = capsys.readouterr().err.splitlines()
+    assert [e for e in err if e.startswith("olsbayes: building")] == [
+        f"olsbayes: building the search over {m:,} candidate locations x 40 sub-sensors "
+        "(once per model and grid; seconds) ..."]
+    assert atoms_module._setup_is_long(m, 40) and not atoms_module._setup_is_long(m, 39)
+    monkeypatch.setattr(atoms_module, "GRAM_ATOMS", m - 1)  # no Gram matrix: entries only
+    assert not atoms_module._setup_is_long(m, 40)
+    assert atoms_module._setup_is_long(atoms_module.NOTICE_ENTRIES // 40 + 1, 40)

@@ -23,7 +23,7 @@ import weakref
 import numpy as np
 
 from ...geometry import lonlat_to_unit
-from ..atoms import NEIGHBOUR
+from ..atoms import GRAM_ATOMS, NEIGHBOUR
 from .options import FastOptions
 from .tuples import TuplePlan, tuple_plans
 
@@ -60,9 +60,6 @@ def _memo(obj: object, make, readonly: bool = True, cache: dict | None = None) -
 #: Largest M^2 N for which the atoms' basins (neighbour lists) come from the unit
 #: atoms' dot products; larger atom sets take them from the Gram matrix when it exists.
 _NEIGHBOUR_WORK = 50_000_000
-#: Largest M for which the atoms' Gram matrix (M^2 doubles) serves the search's
-#: projections: every default ring and sphere grid (:data:`~olsbayes.ml.atoms.SPHERE_ATOMS`).
-_GRAM_ATOMS = 2048
 
 
 def _gram_neighbours(gram: np.ndarray, gnorm2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,9 +77,9 @@ def _gram_neighbours(gram: np.ndarray, gnorm2: np.ndarray) -> tuple[np.ndarray, 
 def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
     """Read-only views of the atoms and of the arrays derived from them.
 
-    The atoms, their Gram matrix (empty when M > :data:`_GRAM_ATOMS`), squared norms,
-    the unit atoms and the CSR neighbour lists of the unit atoms: from their dot
-    products when M^2 N <= :data:`_NEIGHBOUR_WORK`, else from the Gram matrix
+    The atoms, their Gram matrix (empty when M > :data:`~olsbayes.ml.atoms.GRAM_ATOMS`),
+    squared norms, the unit atoms and the CSR neighbour lists of the unit atoms: from
+    their dot products when M^2 N <= :data:`_NEIGHBOUR_WORK`, else from the Gram matrix
     (:func:`_gram_neighbours`), else empty (the searches then scan every atom).
     """
     from .._numba import search as sk
@@ -90,7 +87,7 @@ def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
     def make(a: np.ndarray) -> tuple[np.ndarray, ...]:
         gnorm2 = np.einsum("mn,mn->m", a, a)
         unit = _frozen_view(a / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None])
-        gram = a @ a.T if a.shape[0] <= _GRAM_ATOMS else np.zeros((0, 0))
+        gram = a @ a.T if a.shape[0] <= GRAM_ATOMS else np.zeros((0, 0))
         if a.shape[0] ** 2 * a.shape[1] <= _NEIGHBOUR_WORK:
             indptr, indices = sk.neighbours(unit)
         elif gram.size:
