@@ -25,6 +25,7 @@ __all__ = [
     "positive_float",
     "nonnegative_float",
     "integer",
+    "flag",
     "as_rng",
 ]
 
@@ -204,6 +205,13 @@ def integer(
         hi = "inf" if high is None else str(high)
         raise InputError(f"{name} must be in [{lo}, {hi}]; got {x}")
     return x
+
+
+def flag(name: str, value: object) -> bool:
+    """Check a switch: True or False (a numpy bool too; not 0, 1 or a string)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputError(f"{name} must be True or False; got {_short(value)}")
+    return bool(value)
 
 
 def as_rng(rng: object, name: str = "rng") -> np.random.Generator:

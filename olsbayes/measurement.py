@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import _one
+from ._budget import check_memory
 from ._validation import as_rng, check_reading_range, finite_array, integer, real_array
 from .errors import InputError
 from .noise import GaussianKnown, GaussianPerSensor, GaussianUnknown, NoiseModel, Poisson
@@ -237,12 +238,24 @@ def simulate(model: Model, scene: object, *, rng: object = None,
     gen = as_rng(rng)
     sizes = () if size is None else (size,) if np.ndim(size) == 0 else tuple(size)
     shape = tuple(integer("size", n, low=0) for n in sizes)
-    if is_plain(model) and n_frames is None:
-        mu = model.response(scene)
-        return mu + model.sigma * gen.standard_normal(shape + mu.shape)
     f = None if n_frames is None else integer("n_frames", n_frames, low=1)
+    if is_plain(model) and f is None:
+        mu = model.response(scene)
+        _check_readings(shape, mu.shape, 1)
+        return mu + model.sigma * gen.standard_normal(shape + mu.shape)
     mu = expected(model, model._as_params(scene), None)
+    _check_readings(shape, mu.shape, 1 if f is None else f)
     return model.noise.simulate(mu, gen, shape, f)
+
+
+def _check_readings(shape: tuple[int, ...], mu_shape: tuple[int, ...], n_frames: int) -> None:
+    """The memory of ``shape + mu_shape`` readings of ``n_frames`` frames, before drawing.
+
+    Two arrays of that size at once (the noise and the readings).
+    """
+    count = float(np.prod(shape, dtype=float)) * float(np.prod(mu_shape, dtype=float)) * n_frames
+    check_memory(f"simulate of {count:,.0f} readings (size {shape}, {n_frames} frame(s) of "
+                 f"{mu_shape})", 16.0 * count)
 
 
 # -- the Gaussian surrogate --------------------------------------------------------------

@@ -18,6 +18,7 @@ into one line on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import sys
@@ -28,7 +29,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from .._io import ensure_dir, write_target, write_text_atomic
+from .._io import atomic_path, ensure_dir, write_target, write_text_atomic
 from ..config import Config, load_config, parse_config
 from ..errors import InputError
 
@@ -45,6 +46,8 @@ __all__ = [
     "format_table",
     "DEFAULT_CONFIG",
     "write_output",
+    "readings_text",
+    "write_readings",
     "output_file",
     "output_dir",
 ]
@@ -229,6 +232,34 @@ def write_output(path: str | Path, text: str, name: str = "--out") -> Path:
         return write_text_atomic(p, text)
     except OSError as exc:
         raise InputError(f"{name} {str(p)!r} cannot be written: {exc.strerror or exc}") from None
+
+
+def readings_text(readings: np.ndarray, header: str = "") -> str:
+    """Readings as text: one row per measurement, full float precision."""
+    buf = io.StringIO()
+    np.savetxt(buf, np.atleast_2d(readings), fmt="%.17g", header=header)
+    return buf.getvalue()
+
+
+def write_readings(path: str | Path, readings: np.ndarray, header: str,
+                   name: str = "--out") -> Path:
+    """Readings (T, N) to ``path``: a ``.npy`` array for a ``.npy`` name, else text.
+
+    What the readers of ``--data`` take back (they tell the two by the suffix); the
+    text carries ``header`` as a ``#`` comment, the array only the numbers.
+    Atomic; InputError (not a traceback) when it cannot be written.
+    """
+    p = Path(path)
+    if p.suffix.lower() != ".npy":
+        return write_output(p, readings_text(readings, header), name)
+    buf = io.BytesIO()  # np.save would add ".npy" to the temporary file's name
+    np.save(buf, np.atleast_2d(np.asarray(readings, dtype=float)), allow_pickle=False)
+    try:
+        with atomic_path(p) as tmp:
+            tmp.write_bytes(buf.getvalue())
+    except OSError as exc:
+        raise InputError(f"{name} {str(p)!r} cannot be written: {exc.strerror or exc}") from None
+    return p
 
 
 def output_file(path: str | Path, name: str = "--out") -> Path:

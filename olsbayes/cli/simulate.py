@@ -1,7 +1,8 @@
 """Simulate noisy readings of a scene (Eq. 1 plus N(0, sigma^2) noise, or the [noise] model).
 
 Writes one row of N readings per measurement, as text a `fit` run (or a
-`[data] file = ...` entry) reads back.  The sections [noise], [calibration] and
+`[data] file = ...` entry) reads back, or as a .npy array for an --out name that
+ends in .npy.  The sections [noise], [calibration] and
 [background] apply as for ``olsbayes fit``: ``[noise] model = "poisson"`` writes
 counts (non-negative integers) of the given exposure, with the calibration's
 gains and offsets and the background's value; with ``[noise] frames = true`` the
@@ -17,11 +18,8 @@ Example:
 from __future__ import annotations
 
 import argparse
-import io
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from ..build import MAX_READINGS, model_from_config, scene_from_config
 from ..errors import InputError
@@ -33,11 +31,12 @@ from ._common import (
     emit,
     load_cli_config,
     output_file,
-    write_output,
+    readings_text,
+    write_readings,
 )
 from ._measurement import FIT_SECTIONS, frame_count
 
-__all__ = ["register", "run", "readings_text", "DEFAULT_SEED"]
+__all__ = ["register", "run", "DEFAULT_SEED"]
 
 #: Seed used when neither --seed nor [data] seed is given.
 DEFAULT_SEED = 20260123
@@ -52,16 +51,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--repeats", type=int, default=None, metavar="T",
                    help="number of independent measurements (rows); default [data] repeats or 1")
     p.add_argument("--out", type=Path, default=None, metavar="FILE",
-                   help="write the readings to FILE (text, one row per measurement)")
+                   help="write the readings to FILE (one row per measurement: a .npy "
+                        "array for a .npy name, else text)")
     add_json_arg(p)
     p.set_defaults(run=run)
-
-
-def readings_text(readings: np.ndarray, header: str = "") -> str:
-    """Readings as text: one row per measurement, full float precision."""
-    buf = io.StringIO()
-    np.savetxt(buf, np.atleast_2d(readings), fmt="%.17g", header=header)
-    return buf.getvalue()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -93,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         f"{reps} row(s) of {model.n_sensors} readings" + (" (frames)" if n_frames else "")
     )
     if args.out is not None:
-        write_output(args.out, readings_text(readings, header))
+        write_readings(args.out, readings, header)
     payload = {"seed": seed, "n_sensors": model.n_sensors, "sigma": model.sigma,
                "readings": readings, "out": args.out}
     text = (f"wrote {reps} row(s) of {model.n_sensors} readings to {args.out}"

@@ -32,7 +32,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .._progress import progress_bar
-from .._validation import as_rng, finite_array
+from .._validation import as_rng, finite_array, flag
 from ..errors import ConvergenceWarning, InputError, NullSpaceWarning, PriorBoundWarning
 from ..model import Model
 from .binary import sparse_relaxation, two_level_map
@@ -107,8 +107,7 @@ def image(
     if opts.reference is not None and len(opts.reference) != loc.shape[0]:
         raise InputError(f"reference must have shape ({loc.shape[0]},) (one intensity per "
                          f"direction); got ({len(opts.reference)},)")
-    if not isinstance(progress, (bool, np.bool_)):
-        raise InputError(f"progress must be True or False; got {progress!r}")
+    flag("progress", progress)
     gen = as_rng(rng)
     # The matrices here are small (K <= a few hundred): BLAS threads only add
     # synchronisation, and on a busy machine oversubscription; one thread makes

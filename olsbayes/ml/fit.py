@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import flag
 from ..measurement import is_plain
 from ..model import Model
 from .fast import FastOptions
@@ -82,8 +83,10 @@ def fit_ml(
     InputError
         Bad model, data (not real numbers, wrong length, non-finite, more than 2-D,
         far from sigma), n_sources, method, options (of another method, or out of
-        range) or grid; more rows than the memory budget (:mod:`olsbayes._budget`).
+        range), grid, ``warn`` or ``frames`` (not True or False); more rows than the
+        memory budget (:mod:`olsbayes._budget`).
     """
+    warn = flag("warn", warn)
     if frames is not False or (isinstance(model, Model) and not is_plain(model)):
         return fit_general(model, data, n_sources, method, options=options, grid=grid,
                            rng=rng, warn=warn, frames=frames)

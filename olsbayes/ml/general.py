@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import measurement
-from .._validation import integer
+from .._validation import flag, integer
 from ..bounds import bayesian_information, bound_covariance, marginal_information
 from ..errors import InputError
 from ..measurement import surrogate
@@ -44,9 +44,8 @@ def check_general_inputs(model: object, data: object, n_sources: object, frames:
     """Validated readings as a batch (T, N) or (T, F, N), K and whether it was a batch."""
     if not isinstance(model, Model):
         raise InputError(f"model must be an olsbayes.Model; got {type(model).__name__}")
-    if not isinstance(frames, (bool, np.bool_)):
-        raise InputError(f"frames must be True or False; got {frames!r}")
-    arr = model.check_data(data, frames=bool(frames))
+    frames = flag("frames", frames)
+    arr = model.check_data(data, frames=frames)
     single = 2 if frames else 1
     if arr.ndim not in (single, single + 1):
         shape = "(F, N) or (T, F, N)" if frames else "(N,) or (T, N)"

@@ -6,9 +6,7 @@ import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
-from .._validation import integer, positive_float
+from .._validation import flag, integer, positive_float
 from ..errors import InputError
 from .modes import ModeOptions
 
@@ -16,12 +14,6 @@ __all__ = ["SamplerOptions", "MOVES", "emcee_moves"]
 
 #: Names of the built-in emcee move sets accepted as ``SamplerOptions.moves``.
 MOVES = ("de", "de-snooker", "stretch")
-
-
-def _flag(name: str, value: object) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise InputError(f"{name} must be True or False; got {value!r}")
-    return bool(value)
 
 
 def _check_moves(moves: object) -> object:
@@ -143,10 +135,10 @@ class SamplerOptions:
             "n_burn": None if self.n_burn is None else integer("n_burn", self.n_burn, low=0),
             "thin": integer("thin", self.thin, low=1),
             "moves": _check_moves(self.moves),
-            "vectorize": _flag("vectorize", self.vectorize),
-            "relabel_sources": _flag("relabel_sources", self.relabel_sources),
-            "use_likelihood": _flag("use_likelihood", self.use_likelihood),
-            "multimodal": None if self.multimodal is None else _flag("multimodal",
+            "vectorize": flag("vectorize", self.vectorize),
+            "relabel_sources": flag("relabel_sources", self.relabel_sources),
+            "use_likelihood": flag("use_likelihood", self.use_likelihood),
+            "multimodal": None if self.multimodal is None else flag("multimodal",
                                                                      self.multimodal),
         }
         if not isinstance(self.modes, ModeOptions):

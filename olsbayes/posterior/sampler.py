@@ -14,7 +14,7 @@ import numpy as np
 
 from .._budget import check_memory
 from .._provenance import draw_seed, provenance, seed_of
-from .._validation import as_rng, integer
+from .._validation import as_rng, flag, integer
 from ..antipodal import antipodal_pairs
 from ..errors import (
     AntipodalWarning,
@@ -168,9 +168,7 @@ def sample(
         :class:`~olsbayes.errors.AntipodalWarning`: intervals of such scenes
         under-covered in simulation whichever sampler ran.
     """
-    if not isinstance(frames, (bool, np.bool_)):
-        raise InputError(f"frames must be True or False; got {frames!r}")
-    frames = bool(frames)
+    frames = flag("frames", frames)
     data, k = _check_scene(model, data, n_sources, frames)
     prior = _check_prior(model, k, priors, data, frames)
     options, n_walkers = _check_options(options, prior.n_params)
@@ -182,8 +180,7 @@ def sample(
         raise InputError("SamplerOptions(multimodal=True) samples one vector of readings of the "
                          "Gaussian model without nuisance terms and without a checkpoint; "
                          "use multimodal=None or False here")
-    if not isinstance(progress, (bool, np.bool_)):
-        raise InputError(f"progress must be True or False; got {progress!r}")
+    flag("progress", progress)
     ckpt = None
     if checkpoint is not None:
         ckpt = ChainCheckpoint(checkpoint, problem_key(model, data, prior, n_walkers, options))

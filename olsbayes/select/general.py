@@ -165,16 +165,14 @@ def select_general(model: Model, data: object, k_max: int, *, priors: object,
     ``k_max``, ``method``, ``options`` and ``log_pk`` (the prior on K) are checked by
     the caller.  BIC/AIC use the maximum log-likelihood with P counting the extras.
     """
-    from .._validation import as_rng
+    from .._validation import as_rng, flag
     from ..errors import InputError
     from ..ml import fit_ml
     from .criteria import aic, bic
     from .decide import finish, next_escalation
 
     t0 = time.perf_counter()
-    if not isinstance(frames, (bool, np.bool_)):
-        raise InputError(f"frames must be True or False; got {frames!r}")
-    frames = bool(frames)
+    frames = flag("frames", frames)
     data = model.check_data(data, frames=frames)
     if data.ndim != 1 + frames:
         raise InputError(f"data must be one measurement of shape "

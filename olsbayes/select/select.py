@@ -27,7 +27,7 @@ import numpy as np
 
 from .._budget import check_memory
 from .._progress import progress_bar
-from .._validation import as_rng, integer
+from .._validation import as_rng, flag, integer
 from ..errors import InputError
 from ..measurement import is_plain
 from ..model import Model
@@ -187,8 +187,7 @@ def select_k(
                         frames)
     t0 = time.perf_counter()
     data, k_max, options = _check(model, data, k_max, method, options)
-    if not isinstance(progress, (bool, np.bool_)):
-        raise InputError(f"progress must be True or False; got {progress!r}")
+    flag("progress", progress)
     prior_of = prior_factory(model, data, priors, i_max, check=_sigma_known)
     scene_priors = {k: prior_of(k) for k in range(1, k_max + 1)}
     log_pk = _count_prior(k_prior, k_max)

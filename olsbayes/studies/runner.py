@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_path, ensure_dir
-from .._validation import _short, integer
+from .._validation import _short, flag, integer
 from .._version import __version__
 from ..errors import InputError
 from . import executors
@@ -281,8 +281,7 @@ def run_study(
         chunk_size = integer("chunk_size", chunk_size, low=1)
     if workers is not None:
         workers = integer("workers", workers, low=1)
-    if not isinstance(progress, bool):
-        raise InputError(f"progress must be True or False; got {progress!r}")
+    flag("progress", progress)
     limit = memory_limit(max_memory_gb)
     check_budget(n_trials, g.n_cells, limit)
     out = None if out is None else _writable(out, "out")

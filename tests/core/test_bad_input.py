@@ -97,6 +97,11 @@ API_CASES = [
      "length 30"),
     ("simulate size < 0", lambda: MODEL.simulate(GOOD, rng=0, size=-1), "size"),
     ("simulate size float", lambda: MODEL.simulate(GOOD, rng=0, size=2.5), "size"),
+    ("simulate size beyond memory", lambda: MODEL.simulate(GOOD, rng=0, size=10**12),
+     "memory"),
+    ("simulate frames beyond memory", lambda: ob.Model(RING, noise=ob.Poisson(exposure=1.0))
+     .simulate(GOOD, rng=0, size=2, n_frames=10**11), "memory"),
+    ("fit warn not bool", lambda: ob.fit_ml(MODEL, DATA, 1, warn="no"), "warn must be"),
     ("data wrong length", lambda: MODEL.check_data(np.zeros(29)), "length 30"),
     ("data nan", lambda: MODEL.check_data(np.full(30, np.nan)), "finite"),
     ("rng negative seed", lambda: MODEL.simulate(GOOD, rng=-1), "seed"),
