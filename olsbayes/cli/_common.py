@@ -245,15 +245,17 @@ def write_readings(path: str | Path, readings: np.ndarray, header: str,
                    name: str = "--out") -> Path:
     """Readings (T, N) to ``path``: a ``.npy`` array for a ``.npy`` name, else text.
 
-    What the readers of ``--data`` take back (they tell the two by the suffix); the
-    text carries ``header`` as a ``#`` comment, the array only the numbers.
+    What the readers of ``--data`` take back (they tell the two by the suffix): one
+    row is read back as one measurement (N,) from either.  The text carries
+    ``header`` as a ``#`` comment, the array only the numbers.
     Atomic; InputError (not a traceback) when it cannot be written.
     """
     p = Path(path)
     if p.suffix.lower() != ".npy":
         return write_output(p, readings_text(readings, header), name)
+    rows = np.atleast_2d(np.asarray(readings, dtype=float))
     buf = io.BytesIO()  # np.save would add ".npy" to the temporary file's name
-    np.save(buf, np.atleast_2d(np.asarray(readings, dtype=float)), allow_pickle=False)
+    np.save(buf, rows[0] if rows.shape[0] == 1 else rows, allow_pickle=False)
     try:
         with atomic_path(p) as tmp:
             tmp.write_bytes(buf.getvalue())

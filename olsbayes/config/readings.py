@@ -149,6 +149,9 @@ def read_readings(
         size = p.stat().st_size
         if size > MAX_DATA_BYTES:
             raise ConfigError(f"{where} is {size} bytes; at most {MAX_DATA_BYTES} accepted")
+        if p.suffix.lower() == ".npz":
+            raise ConfigError(f"{where} is a .npz archive; readings are read from one "
+                              "array saved with numpy.save (.npy) or from text")
         if p.suffix.lower() == ".npy":
             arr = _read_npy(p, where, size)
         else:

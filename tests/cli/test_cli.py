@@ -94,6 +94,9 @@ def test_simulate_to_npy_writes_an_array_fit_reads_back(tmp_path, capsys):
     assert fits[0][0] == fits[1][0] == 0
     a, b = (json.loads(f[1]) for f in fits)
     assert a["params"] == b["params"] and a["log_likelihood"] == b["log_likelihood"]
+    one = tmp_path / "one.npy"
+    assert run_cli(capsys, "simulate", "--seed", "5", "--out", str(one))[0] == 0
+    assert np.load(one).shape == (30,)  # one measurement, as one row of text reads back
 
 
 def test_simulate_json_with_config(tmp_path, capsys):

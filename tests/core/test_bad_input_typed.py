@@ -147,6 +147,8 @@ def _files(tmp):
     np.savez(tmp / "archive.npz", a=np.zeros(30))
     (tmp / "archive.npz").rename(p)
     out.append(("npz named npy", p, r"\.npz archive"))
+    np.savez(tmp / "archive.npz", a=np.zeros(30))
+    out.append(("npz", tmp / "archive.npz", r"\.npz archive.*numpy\.save"))
     p = tmp / "huge.npy"
     _npy_header(p, (10**9, 30), payload=b"\0" * 800)
     out.append(("header claims 240 GB", p, r"header says shape \(1000000000, 30\).*800 bytes"))
