@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from ._io import atomic_path
+from ._validation import file_path
 from .errors import InputError
 
 __all__ = ["encode", "decode", "save_result", "load_result", "storable", "UnstorableModel"]
@@ -235,6 +236,7 @@ def save_result(obj: Any, path: str | os.PathLike, attrs: Mapping[str, Any] | No
     ``attrs`` (strings and numbers; None values are left out) are added to the
     file's global attributes, e.g. the provenance record.
     """
+    path = file_path("path", path)
     ds = _dataset(obj, attrs or {})
     with atomic_path(path) as tmp:
         ds.to_netcdf(tmp, engine="h5netcdf")
@@ -245,7 +247,7 @@ def load_result(path: str | os.PathLike, expected: type, model: Any = None) -> A
     """Read a result written by :func:`save_result`; InputError if it is not an ``expected``."""
     import xarray as xr
 
-    p = Path(path)
+    p = file_path("path", path)
     if not p.is_file():
         raise InputError(f"path {str(path)!r} is not a file")
     try:

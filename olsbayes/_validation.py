@@ -8,7 +8,9 @@ tracebacks never reach a user.
 from __future__ import annotations
 
 import numbers
+import os
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +28,8 @@ __all__ = [
     "nonnegative_float",
     "integer",
     "flag",
+    "choice",
+    "file_path",
     "as_rng",
 ]
 
@@ -212,6 +216,22 @@ def flag(name: str, value: object) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise InputError(f"{name} must be True or False; got {_short(value)}")
     return bool(value)
+
+
+def choice(name: str, value: object, allowed: tuple[str, ...]) -> str:
+    """Check a name among ``allowed`` (a string; not an array, list or other object)."""
+    if not isinstance(value, str) or value not in allowed:
+        raise InputError(f"{name} must be one of {allowed}; got {_short(value)}")
+    return value
+
+
+def file_path(name: str, value: object) -> Path:
+    """Check a file or folder path: a non-empty str or os.PathLike (not bytes or a number)."""
+    text = os.fspath(value) if isinstance(value, (str, os.PathLike)) else None
+    if not isinstance(text, str) or not text or "\0" in text:
+        raise InputError(f"{name} must be a file path (a non-empty str or os.PathLike); "
+                         f"got {_short(value)}")
+    return Path(text)
 
 
 def as_rng(rng: object, name: str = "rng") -> np.random.Generator:

@@ -28,7 +28,7 @@ import numpy as np
 
 from ._io import write_text_atomic
 from ._store import load_result, save_result, storable
-from ._validation import finite_array, integer
+from ._validation import file_path, finite_array, integer
 from .errors import ConfigError, InputError
 from .geometry import SensorArray
 from .model import Model
@@ -124,7 +124,7 @@ class Calibration:
     # -- files -------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
         """Write to ``.toml`` (text) or ``.nc`` (NetCDF), atomically."""
-        p = Path(path)
+        p = file_path("path", path)
         if p.suffix.lower() == ".nc":
             return save_result(self, p)
         if p.suffix.lower() != ".toml":
@@ -142,7 +142,7 @@ class Calibration:
     @classmethod
     def load(cls, path: str | os.PathLike) -> Calibration:
         """Read a file written by :meth:`save` (ConfigError for a malformed one)."""
-        p = Path(path)
+        p = file_path("path", path)
         if p.suffix.lower() == ".nc":
             return load_result(p, cls)
         try:

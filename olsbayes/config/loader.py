@@ -8,6 +8,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from .._validation import file_path
 from ..errors import ConfigError
 from .schema import (
     MAX_CONFIG_BYTES,
@@ -96,7 +97,7 @@ def load_config(
 
     Relative paths inside the file are resolved against the file's folder.
     """
-    p = Path(path)
+    p = file_path("path", path)
     try:
         size = p.stat().st_size
         if not p.is_file():

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .._budget import check_memory
-from .._validation import DTYPE_KINDS
+from .._validation import DTYPE_KINDS, file_path
 from ..errors import ConfigError
 from .schema import MAX_DATA_BYTES
 
@@ -141,7 +141,7 @@ def read_readings(
     ``n_sensors`` readings; the message gives positions, dtypes and shapes, never
     the file's contents.
     """
-    p = Path(path)
+    p = file_path(name, path)
     where = f"{name} {str(p)!r}"
     try:
         if not p.is_file():

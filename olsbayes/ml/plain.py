@@ -10,7 +10,7 @@ import numpy as np
 
 from .._budget import check_memory
 from .._notice import notice
-from .._validation import as_rng
+from .._validation import as_rng, choice
 from ..antipodal import ANTIPODAL_SPACINGS, pair_offsets
 from ..bounds import SINGULAR_RTOL, bound_covariance
 from ..errors import AntipodalWarning, ConvergenceWarning, InputError, MultimodalWarning
@@ -109,8 +109,7 @@ def _result_bytes(p: int) -> int:
 
 def _check_options(model: Model, k: int, method: object, options: object) -> object:
     """The method's options, validated and resolved for the model and K."""
-    if method not in _METHODS:
-        raise InputError(f"method must be one of {METHODS}; got {method!r}")
+    choice("method", method, METHODS)
     kind = _METHODS[method].options
     if kind is None:
         if options is not None:

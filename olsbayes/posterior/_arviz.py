@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import atomic_path
+from .._validation import file_path
 from ..errors import InputError
 
 __all__ = [
@@ -313,6 +314,7 @@ def rhat_array(draws: np.ndarray) -> np.ndarray:
 
 def to_netcdf(idata, path: str | os.PathLike) -> Path:
     """Write ``idata`` to NetCDF atomically (loadable with ``arviz.from_netcdf``)."""
+    path = file_path("path", path)
     with atomic_path(path) as tmp:
         idata.to_netcdf(str(tmp))
     return Path(path)
@@ -320,7 +322,7 @@ def to_netcdf(idata, path: str | os.PathLike) -> Path:
 
 def from_netcdf(path: str | os.PathLike):
     """Read an InferenceData written by :func:`to_netcdf`."""
-    if not Path(path).is_file():
+    if not file_path("path", path).is_file():
         raise InputError(f"path {str(path)!r} is not a file")
     az = import_arviz()
     return az.from_netcdf(str(path))

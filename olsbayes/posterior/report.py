@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import atomic_path, ensure_dir, write_text_atomic
+from .._validation import file_path
 from .result import PosteriorResult
 
 __all__ = ["write_report", "ReportFiles"]
@@ -238,7 +239,7 @@ def write_report(
     from ..plotting.checks import plot_k_posterior, plot_ppc
     from ..plotting.corner import plot_corner, plot_trace
 
-    out = ensure_dir(folder, "report folder")
+    out = ensure_dir(file_path("folder", folder), "report folder")
     files = {"corner": out / "corner.png", "trace": out / "trace.png", "ppc": out / "ppc.png",
              "summary_csv": out / "summary.csv", "summary_json": out / "summary.json",
              "netcdf": out / "posterior.nc"}

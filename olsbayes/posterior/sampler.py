@@ -14,7 +14,7 @@ import numpy as np
 
 from .._budget import check_memory
 from .._provenance import draw_seed, provenance, seed_of
-from .._validation import as_rng, flag, integer
+from .._validation import as_rng, file_path, flag, integer
 from ..antipodal import antipodal_pairs
 from ..errors import (
     AntipodalWarning,
@@ -183,7 +183,8 @@ def sample(
     flag("progress", progress)
     ckpt = None
     if checkpoint is not None:
-        ckpt = ChainCheckpoint(checkpoint, problem_key(model, data, prior, n_walkers, options))
+        ckpt = ChainCheckpoint(file_path("checkpoint", checkpoint),
+                               problem_key(model, data, prior, n_walkers, options))
         ckpt.check_seed(None if rng is None else seed_of(rng))
         if rng is None and ckpt.seed is not None:
             rng = ckpt.seed

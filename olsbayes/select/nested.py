@@ -32,7 +32,7 @@ import numpy as np
 from .._io import ensure_dir, write_target
 from .._progress import progress_bar
 from .._store import storable
-from .._validation import as_rng, integer, positive_float
+from .._validation import as_rng, choice, integer, positive_float
 from ..errors import ConvergenceWarning, InputError
 
 __all__ = ["NestedEvidence", "NestedRun", "NestedCheckpoint", "nested_log_evidence", "SAMPLERS"]
@@ -207,8 +207,7 @@ def nested_log_evidence(
     maxcall = integer("maxcall", maxcall, low=1000)
     n_live = max(100, 25 * ndim) if n_live is None else integer("n_live", n_live, low=ndim + 1)
     dlogz = positive_float("dlogz", dlogz)
-    if sample not in SAMPLERS:
-        raise InputError(f"sample must be one of {SAMPLERS}; got {sample!r}")
+    choice("sample", sample, tuple(SAMPLERS))
     per = None if not periodic else [integer("periodic index", i, low=0, high=ndim - 1)
                                       for i in periodic]
     if checkpoint is not None and not isinstance(checkpoint, NestedCheckpoint):

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from .._io import ensure_dir
-from .._validation import integer, nonnegative_float, positive_float
+from .._validation import choice, integer, nonnegative_float, positive_float
 from ..errors import InputError
 from ..ml import METHODS as ML_METHODS
 from .diagnostics import check_thresholds
@@ -188,6 +188,4 @@ class SelectOptions:
             if not isinstance(getattr(self, name), kind):
                 raise InputError(f"{name} must be an olsbayes.select.{kind.__name__}; "
                                  f"got {type(getattr(self, name)).__name__}")
-        if self.ml_method not in ML_METHODS:
-            raise InputError(f"ml_method must be one of {tuple(ML_METHODS)}; "
-                             f"got {self.ml_method!r}")
+        choice("ml_method", self.ml_method, tuple(ML_METHODS))

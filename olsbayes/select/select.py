@@ -27,7 +27,7 @@ import numpy as np
 
 from .._budget import check_memory
 from .._progress import progress_bar
-from .._validation import as_rng, flag, integer
+from .._validation import as_rng, choice, flag, integer
 from ..errors import InputError
 from ..measurement import is_plain
 from ..model import Model
@@ -218,8 +218,7 @@ def _check_settings(model: Model, k_max: object, method: object, options: object
     """K_max within what the readings can hold, the method's name, the options record."""
     high = min(K_MAX_LIMIT, (model.n_sensors - 1) // (model.n_loc + 1))
     k_max = integer("k_max", k_max, low=0, high=high)
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}; got {method!r}")
+    choice("method", method, METHODS)
     if options is None:
         options = SelectOptions()
     elif not isinstance(options, SelectOptions):

@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validation import as_rng, nonnegative_float, positive_float
+from .._validation import as_rng, choice, nonnegative_float, positive_float
 from ..errors import EvidenceWarning, InputError
 from ..model import Model
 from ..noise import NoiseModel
@@ -74,8 +74,7 @@ class StructureOptions:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tie", nonnegative_float("tie", self.tie))
-        if self.method not in _METHODS:
-            raise InputError(f"method must be one of {', '.join(_METHODS)}; got {self.method!r}")
+        choice("method", self.method, _METHODS)
         if self.select is not None and not isinstance(self.select, SelectOptions):
             raise InputError("select must be None or a SelectOptions; got "
                              f"{type(self.select).__name__}")

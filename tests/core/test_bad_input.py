@@ -130,7 +130,27 @@ API_CASES = [
     ("posterior 2-D data", lambda: _sample(data=np.vstack([DATA, DATA])), "data"),
     ("select unknown method", lambda: _select(method="waic"), "method"),
     ("select k_max < 0", lambda: _select(k_max=-1), "k_max"),
+    ("fit method a list", lambda: ob.fit_ml(MODEL, DATA, 1, method=["fast"]), "method"),
+    ("select method an array", lambda: _select(method=np.array(["a", "b"])), "method"),
+    ("select ml_method an array", lambda: ob.SelectOptions(ml_method=np.ones(2)),
+     "ml_method"),
+    ("result saved to a number", lambda: ob.fit_ml(MODEL, DATA, 2).save(3), "path must be"),
+    ("result loaded from None", lambda: ob.MLResult.load(None), "path must be"),
+    ("result saved to bytes", lambda: ob.fit_ml(MODEL, DATA, 2).save(b"r.nc"),
+     "path must be"),
+    ("calibration loaded from a float", lambda: ob.Calibration.load(1.5), "path must be"),
+    ("posterior checkpoint a number", lambda: _sample(checkpoint=7), "checkpoint must be"),
+    ("posterior read from a list", lambda: ob.PosteriorResult.from_netcdf(["p.nc"]),
+     "path must be"),
+    ("report into a number", lambda: ob.write_report(None, 5), "folder must be"),
+    ("config path empty", lambda: _load_config(""), "path must be"),
 ]
+
+
+def _load_config(path):
+    from olsbayes.config import load_config
+
+    return load_config(path)
 
 
 @pytest.mark.parametrize("label,call,match", API_CASES, ids=[c[0] for c in API_CASES])
