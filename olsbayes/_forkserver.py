@@ -24,11 +24,12 @@ import os
 import sys
 import threading
 
-# what trials load on use: scipy.linalg (numba's LAPACK calls in the kernels), the
-# special functions and optimisers of the estimators and scores; forked workers start
-# with them instead of each importing them anew
+# what the fast trials load on use: scipy.linalg (numba's LAPACK calls in the kernels)
+# and the special functions of the fits' checks; forked workers start with them
+# instead of each importing them anew.  scipy.optimize (about 0.3 s, a quarter of the
+# server's start, hence of a process's first pool) is left to the trials that use it:
+# the multistart estimator imports it in each worker on its first trial.
 import scipy.linalg  # noqa: F401
-import scipy.optimize  # noqa: F401
 import scipy.special  # noqa: F401
 
 import olsbayes  # noqa: F401  (the package, with numpy; scipy loads on use)
