@@ -237,3 +237,27 @@ def test_fortran_and_integer_npy_files_are_read(tmp_path):
     np.save(tmp_path / "i.npy", table.astype(np.int16))
     np.testing.assert_array_equal(read_readings(tmp_path / "f.npy", 30), table)
     np.testing.assert_array_equal(read_readings(tmp_path / "i.npy", 30), table)
+
+
+def test_switch_name_and_path_checks_take_only_their_type():
+    """The shared checks of switches, names and paths: the type itself, never a value
+    that merely converts (0/1 or a string for a switch, an array for a name, bytes or
+    a number for a path), each refused with one InputError naming the argument."""
+    from pathlib import Path
+
+    from olsbayes._validation import choice, file_path, flag
+
+    assert [flag("s", v) for v in (True, False, np.True_, np.False_)] == [True, False,
+                                                                         True, False]
+    assert all(type(flag("s", v)) is bool for v in (np.True_, True))
+    for bad in (0, 1, "yes", None, np.array([True])):
+        with pytest.raises(ob.InputError, match="s must be True or False"):
+            flag("s", bad)
+    assert choice("m", "fast", ("fast", "exact")) == "fast"
+    for bad in ("slow", ["fast"], np.array(["fast", "exact"]), None, b"fast"):
+        with pytest.raises(ob.InputError, match="m must be one of"):
+            choice("m", bad, ("fast", "exact"))
+    assert file_path("p", "a/b.nc") == Path("a/b.nc") == file_path("p", Path("a/b.nc"))
+    for bad in (b"a.nc", 3, 1.5, None, "", "a\0b", ["a"], np.ones(2)):
+        with pytest.raises(ob.InputError, match="p must be a file path"):
+            file_path("p", bad)
