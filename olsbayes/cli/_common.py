@@ -224,12 +224,16 @@ def format_table(header: list[str], rows: list[list[Any]], digits: int = 5) -> s
     return "\n".join(lines)
 
 
-def write_output(path: str | Path, text: str, name: str = "--out") -> Path:
-    """Write ``text`` atomically; InputError (not a traceback) when it cannot be."""
+def write_output(path: str | Path, text: str | bytes, name: str = "--out") -> Path:
+    """Write ``text`` (or bytes) atomically; InputError (not a traceback) when it cannot be."""
     p = Path(path)
     write_target(p, name)  # a folder, FIFO or device is refused before anything is written
     try:
-        return write_text_atomic(p, text)
+        if isinstance(text, str):
+            return write_text_atomic(p, text)
+        with atomic_path(p) as tmp:
+            tmp.write_bytes(text)
+        return p
     except OSError as exc:
         raise InputError(f"{name} {str(p)!r} cannot be written: {exc.strerror or exc}") from None
 
@@ -248,20 +252,14 @@ def write_readings(path: str | Path, readings: np.ndarray, header: str,
     What the readers of ``--data`` take back (they tell the two by the suffix): one
     row is read back as one measurement (N,) from either.  The text carries
     ``header`` as a ``#`` comment, the array only the numbers.
-    Atomic; InputError (not a traceback) when it cannot be written.
+    Atomic (:func:`write_output`).
     """
-    p = Path(path)
-    if p.suffix.lower() != ".npy":
-        return write_output(p, readings_text(readings, header), name)
+    if Path(path).suffix.lower() != ".npy":
+        return write_output(path, readings_text(readings, header), name)
     rows = np.atleast_2d(np.asarray(readings, dtype=float))
     buf = io.BytesIO()  # np.save would add ".npy" to the temporary file's name
     np.save(buf, rows[0] if rows.shape[0] == 1 else rows, allow_pickle=False)
-    try:
-        with atomic_path(p) as tmp:
-            tmp.write_bytes(buf.getvalue())
-    except OSError as exc:
-        raise InputError(f"{name} {str(p)!r} cannot be written: {exc.strerror or exc}") from None
-    return p
+    return write_output(path, buf.getvalue(), name)
 
 
 def output_file(path: str | Path, name: str = "--out") -> Path:

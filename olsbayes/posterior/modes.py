@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._store import storable
-from .._validation import integer, positive_float
+from .._validation import flag, integer, positive_float
 from ..antipodal import ANTIPODAL_SPACINGS, antipodal_pairs, mirror_pair
 from ..errors import InputError
 
@@ -99,8 +99,7 @@ class ModeOptions:
         integer("max_modes", self.max_modes, low=1)
         integer("rounds", self.rounds, low=1)
         for name in ("shifts", "crlb_alarm", "on_rival", "on_singular"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise InputError(f"{name} must be True or False; got {getattr(self, name)!r}")
+            object.__setattr__(self, name, flag(name, getattr(self, name)))
         integer("evidence_draws", self.evidence_draws, low=100)
         c = self.condition_max
         if not isinstance(c, (int, float, np.floating)) or isinstance(c, bool) or not c > 1:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from .._io import ensure_dir
-from .._validation import choice, integer, nonnegative_float, positive_float
+from .._validation import choice, flag, integer, nonnegative_float, positive_float
 from ..errors import InputError
 from ..ml import METHODS as ML_METHODS
 from .diagnostics import check_thresholds
@@ -154,11 +154,8 @@ class DecisionOptions:
         object.__setattr__(self, "max_escalations",
                            integer("max_escalations", self.max_escalations, low=0))
         object.__setattr__(self, "min_gain", nonnegative_float("min_gain", self.min_gain))
-        if not isinstance(self.recheck_decisive, bool):
-            raise InputError("recheck_decisive must be True or False; "
-                             f"got {self.recheck_decisive!r}")
-        if not isinstance(self.quadrature, bool):
-            raise InputError(f"quadrature must be True or False; got {self.quadrature!r}")
+        for name in ("recheck_decisive", "quadrature"):
+            object.__setattr__(self, name, flag(name, getattr(self, name)))
 
 
 @dataclass(frozen=True)

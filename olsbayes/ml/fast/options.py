@@ -56,7 +56,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from ..._validation import integer, nonnegative_float, positive_float
+from ..._validation import flag, integer, nonnegative_float, positive_float
 from ...errors import InputError
 from ...geometry import Ring
 from ...sensitivity import is_clipped_cosine
@@ -173,8 +173,8 @@ class FastOptions:
         for name in ("distinct_modes", "pursuit", "single_precision", "kink_cuts",
                      "cell_stop", "kink_hops", "escalate"):
             value = getattr(self, name)
-            if value is not None and not isinstance(value, bool):
-                raise InputError(f"{name} must be True or False; got {value!r}")
+            if value is not None:  # a plain bool: the kernels see one type
+                object.__setattr__(self, name, flag(name, value))
 
     def resolve(self, model, k: int) -> FastOptions:
         """These options with every None replaced by its default for K sources.
