@@ -6,6 +6,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 import olsbayes
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -63,6 +65,38 @@ def test_importing_the_package_loads_no_heavy_dependency():
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
+
+
+def test_the_wings_load_on_first_use_and_every_public_name_resolves():
+    """Imaging, posteriors, model selection, studies and calibration load when first
+    touched (a fit or a study worker needs none of them); every name of ``__all__``
+    and every submodule is then an attribute as before."""
+    wings = ("calibration", "imaging", "posterior", "select", "studies")
+    script = ("import sys, olsbayes as ob; "
+              f"print(sorted(w for w in {wings!r} if 'olsbayes.' + w in sys.modules)); "
+              "print(ob.image is ob.imaging.image, ob.sample_posterior is ob.posterior.sample, "
+              "'select_k' in dir(ob), 'imaging' in dir(ob)); "
+              "from olsbayes import *; print(all(n in globals() for n in ob.__all__))")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["[]", "True", "True", "True", "True", "True"], proc.stdout
+    for name in olsbayes.__all__:
+        assert getattr(olsbayes, name) is not None, name
+    for name in olsbayes._SUBMODULES:
+        assert getattr(olsbayes, name).__name__ == f"olsbayes.{name}"
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        olsbayes.nope  # noqa: B018
+
+
+def test_the_version_is_written_once_and_is_the_installed_metadata():
+    from importlib.metadata import version
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert "version" in project["project"]["dynamic"]
+    attr = project["tool"]["setuptools"]["dynamic"]["version"]["attr"]
+    assert attr == "olsbayes._version.__version__"
+    assert version("olsbayes") == olsbayes.__version__
 
 
 def test_typed_marker_licence_and_citation_ship_with_the_package():
