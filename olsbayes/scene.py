@@ -6,7 +6,7 @@ from dataclasses import InitVar, dataclass, field
 
 import numpy as np
 
-from ._validation import finite_array
+from ._validation import choice, finite_array
 from .circular import wrap_angle
 from .errors import InputError
 
@@ -49,8 +49,7 @@ class Scene:
     def __post_init__(self, unit: str = "rad") -> None:
         if (self.directions is None) == (self.positions is None):
             raise InputError("Scene needs exactly one of directions= and positions=")
-        if not isinstance(unit, str) or unit not in ANGLE_UNITS:
-            raise InputError(f"unit must be one of {ANGLE_UNITS}; got {unit!r}")
+        choice("unit", unit, ANGLE_UNITS)
         if unit == "deg" and self.positions is not None:
             raise InputError("unit='deg' applies to directions; positions are lengths")
         inten = finite_array(

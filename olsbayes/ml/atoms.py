@@ -36,7 +36,8 @@ RING_ATOMS_MAX = 1024
 SPHERE_ATOMS = (1024, 2048)
 
 #: Largest M for which the fast search forms the atoms' Gram matrix (M^2 doubles) for
-#: its projections: every default ring and sphere grid (:data:`SPHERE_ATOMS`).
+#: its projections: every default ring and sphere grid (:data:`SPHERE_ATOMS`).  The
+#: coarse subsets' sampling reuses that matrix (:mod:`olsbayes.ml.fast.coarse`).
 GRAM_ATOMS = 2048
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validation import choice
 from ..circular import wrap_angle
 from ..errors import InputError
 from ..model import Model
@@ -86,8 +87,7 @@ def plot_sky(
             f"lon, lat and values must be non-empty and of equal length; got {lon.size}, "
             f"{lat.size}, {val.size}"
         )
-    if projection not in PROJECTIONS:
-        raise InputError(f"projection must be one of {PROJECTIONS}; got {projection!r}")
+    choice("projection", projection, PROJECTIONS)
     import matplotlib.pyplot as plt
 
     if ax is None:

@@ -386,6 +386,8 @@ def test_sky_maps_return_figures():
     plt.close(fig)
     with pytest.raises(InputError, match="projection"):
         plot_sky([0.0], [0.0], [1.0], projection="hammer")
+    with pytest.raises(InputError, match="projection"):  # not a name: no ambiguous truth value
+        plot_sky([0.0], [0.0], [1.0], projection=np.array(["mollweide", "mollweide"]))
     with pytest.raises(InputError, match="equal length"):
         plot_sky([0.0, 1.0], [0.0], [1.0])
 

@@ -319,19 +319,19 @@ def test_gram_farthest_point_sampling_is_farthest_point_sampling():
 
 @pytest.mark.parametrize("lazy", [False, True])
 def test_large_unit_atom_farthest_point_sampling_is_farthest_point_sampling(lazy, monkeypatch):
-    """Atom sets beyond GRAM_SAMPLING_ATOMS atoms and GRAM_SAMPLING_ENTRIES entries (a
+    """Atom sets beyond GRAM_ATOMS atoms and GRAM_SAMPLING_ENTRIES entries (a
     plate's 3-D grid) take correlations by matrix-vector products, and beyond
     LAZY_SAMPLING_ENTRIES (here lowered to this plate's size) bring distances up to
     date lazily: each atom added is still (to rounding) the live atom farthest from
     those chosen before it; dead atoms are never chosen."""
-    from olsbayes.ml.atoms import atoms, cached_default_grid
+    from olsbayes.ml.atoms import GRAM_ATOMS, atoms, cached_default_grid
     from olsbayes.ml.fast import coarse
-    from olsbayes.ml.fast.coarse import GRAM_SAMPLING_ATOMS, GRAM_SAMPLING_ENTRIES, coarse_subsets
+    from olsbayes.ml.fast.coarse import GRAM_SAMPLING_ENTRIES, coarse_subsets
 
     model = ob.Model(ob.Plate.grid(12, 12, 1.0), 1e-2)
     g = atoms(model, cached_default_grid(model))
     g = np.vstack([np.zeros((3, g.shape[1])), g])  # atoms no sub-sensor sees: never chosen
-    assert g.shape[0] > GRAM_SAMPLING_ATOMS and g.size > GRAM_SAMPLING_ENTRIES
+    assert g.shape[0] > GRAM_ATOMS and g.size > GRAM_SAMPLING_ENTRIES
     if lazy:
         monkeypatch.setattr(coarse, "LAZY_SAMPLING_ENTRIES", g.size - 1)
         monkeypatch.setattr(coarse, "_unit_distances", None)  # the lazy path needs none

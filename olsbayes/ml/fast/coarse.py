@@ -18,8 +18,8 @@ from math import comb
 
 import numpy as np
 
-__all__ = ["coarse_size", "coarse_subsets", "GRAM_SAMPLING_ENTRIES", "GRAM_SAMPLING_ATOMS",
-           "LAZY_SAMPLING_ENTRIES", "DISTANCE_ROWS_BYTES", "RESEEDS"]
+__all__ = ["coarse_size", "coarse_subsets", "GRAM_SAMPLING_ENTRIES", "LAZY_SAMPLING_ENTRIES",
+           "DISTANCE_ROWS_BYTES", "RESEEDS"]
 
 
 @functools.lru_cache(maxsize=256)
@@ -40,11 +40,11 @@ def coarse_size(m: int, n: int, k: int, budget: int) -> int:
     return lo if lo > k else 0
 
 
-#: Atom matrices with more entries (M N) than this, of at most GRAM_SAMPLING_ATOMS
-#: atoms (an M x M Gram matrix of at most 32 MiB), run the farthest-point sampling on
-#: their Gram matrix: O(M) per step instead of O(M N).
+#: Atom matrices with more entries (M N) than this, of at most
+#: :data:`~olsbayes.ml.atoms.GRAM_ATOMS` atoms (whose Gram matrix the search forms
+#: anyway, at most 32 MiB), run the farthest-point sampling on their Gram matrix:
+#: O(M) per step instead of O(M N).
 GRAM_SAMPLING_ENTRIES = 500_000
-GRAM_SAMPLING_ATOMS = 2048
 #: Atom matrices with more entries than this and no Gram matrix sample lazily: a
 #: step of the plain sampling then reads more than 32 MB of atoms, and the lazy one
 #: is the faster (``benchmarks/first_fit.py``; docs/performance.md).

@@ -36,8 +36,8 @@ from math import comb
 
 import numpy as np
 
-from ..atoms import NEIGHBOUR
-from .coarse import GRAM_SAMPLING_ATOMS, GRAM_SAMPLING_ENTRIES, coarse_size, coarse_subsets
+from ..atoms import GRAM_ATOMS, NEIGHBOUR
+from .coarse import GRAM_SAMPLING_ENTRIES, coarse_size, coarse_subsets
 
 __all__ = ["tuple_plans", "TuplePlan"]
 
@@ -183,7 +183,7 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type,
     single fits with one model reuse them (an LRU cache of 16 entries keyed by a
     hash of the atoms, computed once per read-only atom array).  Atom matrices of
     more than :data:`~olsbayes.ml.fast.coarse.GRAM_SAMPLING_ENTRIES` entries and at
-    most :data:`~olsbayes.ml.fast.coarse.GRAM_SAMPLING_ATOMS` atoms pick their
+    most :data:`~olsbayes.ml.atoms.GRAM_ATOMS` atoms pick their
     subsets on their Gram matrix (``gram``, (M, M), computed here if not given).
     """
     size = coarse_size(g.shape[0], g.shape[1], k, budget)
@@ -194,7 +194,7 @@ def tuple_plans(g: np.ndarray, k: int, n_sets: int, budget: int, dtype: type,
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
-    if g.size > GRAM_SAMPLING_ENTRIES and g.shape[0] <= GRAM_SAMPLING_ATOMS:
+    if g.size > GRAM_SAMPLING_ENTRIES and g.shape[0] <= GRAM_ATOMS:
         gram = g @ g.T if gram is None or gram.shape[0] != g.shape[0] else gram
     else:
         gram = None
