@@ -44,7 +44,7 @@ from .circular import wrap_angle
 from .errors import NearResolutionWarning
 
 __all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "min_separation",
-           "weak_sources", "RESOLUTION_SPACINGS", "WEAK_SDS", "ANTIPODAL_DOUBT"]
+           "sensor_spacing", "weak_sources", "RESOLUTION_SPACINGS", "WEAK_SDS", "ANTIPODAL_DOUBT"]
 
 #: Sources closer than this many sensor spacings are near the resolution limit.
 RESOLUTION_SPACINGS = 1.5
@@ -63,10 +63,42 @@ CLOSE_ADVICE = (
     "its separation is not, so compare one source fewer before reading per-source errors")
 
 
+#: Rows of the pairwise block computed at once (memory: _ROWS x N doubles).
+_ROWS = 512
+
+
+def sensor_spacing(model) -> float:
+    """Typical distance between neighbouring sub-sensors, in source-location units.
+
+    Angles (ring, sphere): the median angle (rad) between each normal and its
+    nearest neighbour -- 2 pi / N on a uniform ring.  Positions (plate): the
+    median nearest-neighbour distance of the sub-sensor positions.  Computed once
+    per model (cached on it), over blocks of rows: O(N^2) time once, O(N) memory
+    beyond one block.
+    """
+    return model.memo("sensor_spacing", lambda: _nearest_median(model))
+
+
+def _nearest_median(model) -> float:
+    far = model.kind != "position"
+    pts = model.array.normals if far else model.array.positions
+    n = len(pts)
+    nearest = np.empty(n)
+    for lo in range(0, n, _ROWS):
+        rows = np.arange(lo, min(lo + _ROWS, n))
+        if far:  # the largest cosine is the smallest angle (arccos decreases)
+            c = pts[rows] @ pts.T
+            c[np.arange(len(rows)), rows] = -np.inf
+            nearest[rows] = np.arccos(np.clip(c.max(axis=1), -1.0, 1.0))
+        else:
+            d = np.linalg.norm(pts[rows][:, None, :] - pts[None, :, :], axis=-1)
+            d[np.arange(len(rows)), rows] = np.inf
+            nearest[rows] = d.min(axis=1)
+    return float(np.median(nearest))
+
+
 def min_separation(model, x: np.ndarray) -> np.ndarray:
     """Smallest source-to-source distance of each row of ``x`` (T, P), in sensor spacings."""
-    from .select.diagnostics import sensor_spacing
-
     t, p = x.shape
     k = p // (model.n_loc + 1)
     if k < 2:

@@ -54,13 +54,13 @@ Settings (:mod:`olsbayes.select.options`)
     every record is checked when it is built.
 """
 
+from ..resolution import sensor_spacing
 from .criteria import LOOResult, aic, bic, loo_compare
 from .diagnostics import (
     THRESHOLDS,
     check_thresholds,
     laplace_trust,
     min_separation,
-    sensor_spacing,
 )
 from .importance import importance_log_evidence
 from .laplace import (

@@ -21,9 +21,9 @@ from ..bounds import bound_covariance
 from ..errors import InputError
 from ..geometry import lonlat_to_unit
 from ..model import Model
+from ..resolution import sensor_spacing
 
-__all__ = ["sensor_spacing", "min_separation", "laplace_trust", "check_thresholds",
-           "THRESHOLDS"]
+__all__ = ["min_separation", "laplace_trust", "check_thresholds", "THRESHOLDS"]
 
 #: Default thresholds of :func:`laplace_trust` (read-only).
 THRESHOLDS: Mapping[str, float] = MappingProxyType({
@@ -53,40 +53,6 @@ def check_thresholds(thresholds: Mapping[str, float] | None) -> dict[str, float]
         out[key] = positive_float(f"thresholds[{key!r}]", value,
                                   upper=1.0 if key == "correlation" else None)
     return out
-
-
-#: Rows of the pairwise block computed at once (memory: _ROWS x N doubles).
-_ROWS = 512
-
-
-def sensor_spacing(model: Model) -> float:
-    """Typical distance between neighbouring sub-sensors, in source-location units.
-
-    Angles (ring, sphere): the median angle (rad) between each normal and its
-    nearest neighbour -- 2 pi / N on a uniform ring.  Positions (plate): the
-    median nearest-neighbour distance of the sub-sensor positions.  Computed once
-    per model (cached on it), over blocks of rows: O(N^2) time once, O(N) memory
-    beyond one block.
-    """
-    return model.memo("sensor_spacing", lambda: _nearest_median(model))
-
-
-def _nearest_median(model: Model) -> float:
-    far = model.kind != "position"
-    pts = model.array.normals if far else model.array.positions
-    n = len(pts)
-    nearest = np.empty(n)
-    for lo in range(0, n, _ROWS):
-        rows = np.arange(lo, min(lo + _ROWS, n))
-        if far:  # the largest cosine is the smallest angle (arccos decreases)
-            c = pts[rows] @ pts.T
-            c[np.arange(len(rows)), rows] = -np.inf
-            nearest[rows] = np.arccos(np.clip(c.max(axis=1), -1.0, 1.0))
-        else:
-            d = np.linalg.norm(pts[rows][:, None, :] - pts[None, :, :], axis=-1)
-            d[np.arange(len(rows)), rows] = np.inf
-            nearest[rows] = d.min(axis=1)
-    return float(np.median(nearest))
 
 
 def min_separation(model: Model, params: np.ndarray) -> tuple[float, tuple[int, int]]:

@@ -38,7 +38,7 @@ from .._validation import as_rng, integer, positive_float
 from ..bounds import bound_covariance
 from ..errors import InputError
 from ..exchange import permutations
-from .diagnostics import sensor_spacing
+from ..resolution import sensor_spacing
 from .intensity import location_log_weights
 
 __all__ = ["MixtureEvidence", "mixture_log_evidence", "location_scales", "MAX_SOURCES"]
