@@ -13,17 +13,22 @@ __all__ = ["TWO_PI", "wrap_angle", "circular_mean", "largest_gap_cut", "unwrap_a
 
 TWO_PI = 2.0 * np.pi
 
+#: Arrays of at most this many angles are wrapped by numpy's ``mod`` itself (a fit's
+#: few sources: one ufunc call instead of three, about 3 us against 10 us).
+_SMALL = 64
+
 
 def wrap_angle(x: np.ndarray | float) -> np.ndarray:
     """Angles (rad) wrapped to the interval (-pi, pi], same shape as ``x``.
 
-    ``pi - mod(pi - x, 2 pi)``.  On arrays the floored modulus is taken as numpy's
-    ``mod`` takes it -- the truncated remainder ``fmod``, plus 2 pi where it is
-    negative (a zero remainder's sign does not reach the result) -- in place on one
-    temporary: the same numbers, without ``mod``'s floor division.
+    ``pi - mod(pi - x, 2 pi)``.  On arrays of more than a few angles the floored
+    modulus is taken as numpy's ``mod`` takes it -- the truncated remainder ``fmod``,
+    plus 2 pi where it is negative (a zero remainder's sign does not reach the
+    result) -- in place on one temporary: the same numbers, without ``mod``'s floor
+    division.
     """
     x = np.asarray(x, dtype=float)
-    if x.ndim == 0:
+    if x.size <= _SMALL:  # one ufunc call: cheaper than three on a few angles
         return np.pi - np.mod(np.pi - x, TWO_PI)
     y = np.subtract(np.pi, x)
     np.fmod(y, TWO_PI, out=y)

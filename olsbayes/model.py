@@ -385,9 +385,9 @@ class Model(Frozen):
             blocks[..., 0] = wrap_angle(blocks[..., 0])
         if blocks.shape[-2] < 2:
             return x  # one source: nothing to sort (blocks is a view of x)
-        order = np.argsort(blocks[..., 0], axis=-1, kind="stable")
-        blocks = np.take_along_axis(blocks, order[..., None], axis=-2)
-        return blocks.reshape(x.shape)
+        rows = blocks.reshape(-1, *blocks.shape[-2:])  # (T, K, d + 1): one row per scene
+        order = np.argsort(rows[..., 0], axis=-1, kind="stable")
+        return rows[np.arange(rows.shape[0])[:, None], order].reshape(x.shape)
 
     def __repr__(self) -> str:
         # sigma is the model's own only under the default noise; else the noise says it

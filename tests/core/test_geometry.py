@@ -19,6 +19,16 @@ def test_wrap_angle_range_and_endpoints():
     assert wrap_angle(0.0) == 0.0
 
 
+@pytest.mark.parametrize("n", [1, 7, 64, 65, 4001])
+def test_wrap_angle_is_pi_minus_numpy_mod_to_the_bit_few_angles_or_many(n):
+    """A few angles take numpy's mod itself, many its in-place equivalent: both give
+    pi - mod(pi - x, 2 pi) bit for bit, multiples of 2 pi and huge angles included."""
+    x = np.random.default_rng(n).normal(0.0, 50.0, n)
+    x[: min(n, 6)] = [np.pi, -np.pi, 4 * np.pi, -3 * np.pi, 1e17, -0.0][: min(n, 6)]
+    w = wrap_angle(x)
+    assert w.tobytes() == (np.pi - np.mod(np.pi - x, 2 * np.pi)).tobytes()
+
+
 def test_ring_normals_at_offset_plus_equal_steps():
     ring = Ring(8, offset=0.25)
     assert ring.n_sensors == 8 and len(ring) == 8
