@@ -57,7 +57,10 @@ class PoolFuture:
         with self._lock:
             if self.inner is None and not self._claimed and self._outcome is None:
                 fn, args = self._call
-                self.inner = pool.submit(fn, *args)
+                try:
+                    self.inner = pool.submit(fn, *args)
+                except cf.process.BrokenProcessPool as exc:  # settled: result() says why
+                    self._outcome = (False, _broken(exc))
 
     def run_here(self) -> None:
         """Run the call in this process (its exception, if any, is kept for result())."""
@@ -79,11 +82,7 @@ class PoolFuture:
         try:
             return self.inner.result()
         except cf.process.BrokenProcessPool as exc:
-            raise InputError(
-                "the study's worker processes ended abruptly (killed, out of memory, or "
-                "failing on start-up). Workers import the script that called run_study: a "
-                "script must call it under `if __name__ == \"__main__\":`; or use "
-                f"executor='serial' or 'threads' ({exc})") from None
+            raise _broken(exc) from None
 
     def cancel(self) -> bool:
         """Cancel the call if it has not started (here or in the pool)."""
@@ -94,6 +93,15 @@ class PoolFuture:
                 self._outcome = (False, cf.CancelledError())
                 return True
         return self.inner.cancel()
+
+
+def _broken(exc: BaseException) -> InputError:
+    """The error a call of a broken pool raises, in one line."""
+    return InputError(
+        "the study's worker processes ended abruptly (killed, out of memory, or failing "
+        "on start-up). Workers import the script that called run_study: a script must "
+        "call it under `if __name__ == \"__main__\":`; or use executor='serial' or "
+        f"'threads' ({exc})")
 
 
 def forkserver_context(*extra: str) -> multiprocessing.context.BaseContext:

@@ -31,8 +31,9 @@ from .._notice import notice
 from .._validation import _short, integer
 from ..errors import InputError
 from ._pool import LocalPool, forkserver_context
+from ._script import unguarded_call
 
-__all__ = ["Backend", "make_backend", "EXECUTORS", "POOL_START_DELAY"]
+__all__ = ["Backend", "make_backend", "check_script_guard", "EXECUTORS", "POOL_START_DELAY"]
 
 #: Executor names accepted by :func:`make_backend`.
 EXECUTORS = ("serial", "threads", "processes", "dask")
@@ -133,6 +134,31 @@ def _dask_backend(client: Any, closer: Callable[[], None] | None) -> Backend:
     return Backend("dask", nthreads, submit, "dask", closer, chunks_per_worker=4)
 
 
+def check_script_guard(executor: object, scheduler: str | None = None) -> None:
+    """Refuse a local pool or Dask cluster started by unguarded top-level code of a script.
+
+    Their workers fork from a server that imports the running script, which would
+    start the study again there (:mod:`._script`).  Other executors, and a Dask
+    scheduler elsewhere, never import it.
+
+    Raises
+    ------
+    InputError
+        ``executor`` is ``"processes"``, or ``"dask"`` with no ``scheduler``, and
+        the call comes from a top-level statement of the running script outside
+        ``if __name__ == "__main__":``.
+    """
+    local = isinstance(executor, str) and (
+        executor == "processes" or (executor == "dask" and scheduler is None))
+    where = unguarded_call() if local else None
+    if where is not None:
+        path, line = where
+        raise InputError(
+            f"executor={executor!r} starts worker processes that import the script "
+            f"{path!r}, whose line {line} starts this study at the top level: put the "
+            "study under `if __name__ == \"__main__\":`, or use executor='serial' or 'threads'")
+
+
 def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
     if importlib.util.find_spec("distributed") is None:  # pragma: no cover - environment
         raise InputError(
@@ -140,7 +166,9 @@ def _start_dask(scheduler: str | None, workers: int | None) -> Backend:
             "pip install 'olsbayes[dask]'"
         )
     if scheduler is None:
-        return _local_dask(_local_workers(workers))
+        n = _local_workers(workers)
+        check_script_guard("dask")
+        return _local_dask(n)
     if not isinstance(scheduler, str) or not scheduler:
         raise InputError(f"scheduler must be an address such as 'tcp://host:8786'; "
                          f"got {_short(scheduler)}")
@@ -240,6 +268,13 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
     start_delay : float
         Seconds before ``"processes"`` starts its pool; until then, and until the
         pool delivers, ``wait_first`` runs the calls in this process.
+
+    Raises
+    ------
+    InputError
+        An unknown executor, a scheduler without ``"dask"``, or a local pool or
+        Dask cluster asked for by a top-level statement of the running script
+        outside ``if __name__ == "__main__":`` (:func:`check_script_guard`).
     """
     if scheduler is not None and executor != "dask":
         raise InputError(f"scheduler is only used with executor='dask'; got executor={executor!r}")
@@ -252,6 +287,7 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
             return Backend("threads", n, pool.submit, "cf", pool.shutdown)
         if executor == "processes":
             n = _local_workers(workers)
+            check_script_guard("processes")
             local = LocalPool(n, start_delay)
             backend = Backend("processes", n, local.submit, "pool", local.close)
             backend._local = local

@@ -282,6 +282,7 @@ def run_study(
     if workers is not None:
         workers = integer("workers", workers, low=1)
     flag("progress", progress)
+    executors.check_script_guard(executor, scheduler)  # before any file is touched
     limit = memory_limit(max_memory_gb)
     check_budget(n_trials, g.n_cells, limit)
     out = None if out is None else _writable(out, "out")
