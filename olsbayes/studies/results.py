@@ -148,16 +148,27 @@ class Results:
         self._done[rec.cell, trials] = True
         self.n_done += len(trials)
 
-    def todo(self, size: int) -> Iterator[tuple[int, np.ndarray]]:
-        """Chunks (cell, trial indices) of at most ``size`` trials not done, cell by cell."""
+    def todo(self, size: int, workers: int = 1) -> Iterator[tuple[int, np.ndarray]]:
+        """Chunks (cell, trial indices) of at most ``size`` trials not done, cell by cell.
+
+        With ``workers`` > 1 the chunks shrink towards the end of the study (guided
+        self-scheduling): a chunk holds at most ``ceil(R / (2 workers))`` of the
+        ``R`` trials not yet handed out, and at least ``ceil(size / 8)``, so the
+        workers finish within about a small chunk of each other instead of one
+        waiting up to a whole chunk for the other.  Which trials run where never
+        changes a trial's result.
+        """
+        left = self.n_todo  # not yet handed out
+        floor = -(-size // 8)
         for cell in range(self.n_cells):
-            if self._done is None:
-                for i in range(0, self.n_trials, size):
-                    yield cell, np.arange(i, min(i + size, self.n_trials))
-                continue
-            idx = np.flatnonzero(~self._done[cell])
-            for i in range(0, len(idx), size):
-                yield cell, idx[i:i + size]
+            idx = None if self._done is None else np.flatnonzero(~self._done[cell])
+            count = self.n_trials if idx is None else len(idx)
+            i = 0
+            while i < count:
+                n = size if workers <= 1 else min(size, max(floor, -(-left // (2 * workers))))
+                n = min(n, count - i)
+                yield cell, np.arange(i, i + n) if idx is None else idx[i:i + n]
+                i, left = i + n, left - n
 
     def missing(self, label: Callable[[int], str], most: int = 4) -> str:
         """The trials not done, as ``"<cell label>: trials 3-7, 9; ..."``."""

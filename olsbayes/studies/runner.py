@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import pickle
 import sys
 import tempfile
+import threading
 import types
 import warnings
 from collections.abc import Callable, Iterator, Mapping
@@ -23,6 +23,7 @@ from .._validation import _short, flag, integer
 from .._version import __version__
 from ..errors import InputError
 from . import executors
+from ._output import dataset_seed, first_dataset, seed_attrs, study_dataset
 from ._work import (
     check_signature,
     declared_outputs,
@@ -30,7 +31,7 @@ from ._work import (
     is_vectorized,
     run_chunk,
 )
-from .checkpoint import Checkpoint, ChunkRecord, fingerprint_key, recorded_seed
+from .checkpoint import Checkpoint, ChunkRecord, recorded_seed
 from .grid import Grid, check_fixed, check_known, make_grid, settings_json
 from .results import Results, check_budget, memory_limit
 from .seeds import study_entropy
@@ -71,64 +72,6 @@ def _fingerprint(trial: Callable, grid: Grid, fixed: dict, n_trials: int, entrop
         "seed": str(entropy),
         "olsbayes_version": __version__,
     }
-
-
-def seed_attrs(entropy: int) -> dict[str, Any]:
-    """The dataset attributes of a study's root seed: numeric, plus its exact decimal text.
-
-    ``seed`` is an int64 when the seed fits (every seed a user types); a larger
-    entropy (128 bits drawn when no seed is given) is stored as an array of uint64
-    words, least significant first, that :func:`dataset_seed` reassembles.
-    ``seed_decimal`` holds the same number as text.
-    """
-    if entropy < 2**63:
-        return {"seed": np.int64(entropy), "seed_decimal": str(entropy)}
-    words = []
-    rest = entropy
-    while rest:
-        words.append(rest & (2**64 - 1))
-        rest >>= 64
-    return {"seed": np.array(words, dtype=np.uint64), "seed_decimal": str(entropy)}
-
-
-def dataset_seed(ds: Any) -> int:
-    """The root seed of a study dataset (as ``rng`` for :func:`run_study` to repeat it)."""
-    seed = ds.attrs["seed"]
-    if isinstance(seed, str):  # written by an older version
-        return int(seed)
-    words = np.atleast_1d(np.asarray(seed)).astype(np.uint64)
-    return sum(int(w) << (64 * i) for i, w in enumerate(words))
-
-
-#: Attributes of the trial coordinate.
-_TRIAL_ATTRS = {"long_name": "trial index within a grid cell"}
-
-
-def _dataset(full: dict, grid: Grid, fingerprint: dict, described: Mapping) -> Any:
-    import xarray as xr
-
-    dims = grid.names + ("trial",)
-    data_vars = {}
-    for name, arr in full.items():
-        long_name, units = described.get(name, (name, None))
-        attrs = {"long_name": long_name}
-        if units:
-            attrs["units"] = units
-        data_vars[name] = (dims + tuple(f"{name}_dim{i}" for i in range(arr.ndim - len(dims))),
-                           arr, attrs)
-    coords = dict(grid.coords())
-    coords["trial"] = ("trial", np.arange(fingerprint["n_trials"]), _TRIAL_ATTRS)
-    attrs = {
-        **seed_attrs(int(fingerprint["seed"])),
-        "olsbayes_version": fingerprint["olsbayes_version"],
-        "trial_function": fingerprint["trial"],
-        "vectorized": int(fingerprint["vectorized"]),
-        "n_trials": fingerprint["n_trials"],
-        "grid": json.dumps(fingerprint["grid"]),
-        "fixed_settings": json.dumps(fingerprint["fixed"]),
-        "study_key": fingerprint_key(fingerprint),
-    }
-    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
 
 
 def _check_picklable(trial: Callable, backend_name: str) -> None:
@@ -304,7 +247,7 @@ def run_study(
             ckpt.close()
     shape = g.shape + (n_trials,)
     full = {k: v.reshape(shape + v.shape[2:]) for k, v in results.arrays.items()}
-    ds = _dataset(full, g, fp, declared_outputs(trial))
+    ds = study_dataset(full, g, fp, declared_outputs(trial))
     if out is not None:
         with atomic_path(out) as tmp:
             ds.to_netcdf(tmp, engine="h5netcdf")
@@ -333,6 +276,9 @@ def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tu
     total = study.grid.n_cells * study.n_trials
     n_todo = results.n_todo
     executor, workers, scheduler = where
+    if not isinstance(executor, str) or executor in ("threads", "processes", "dask"):
+        # xarray's first Dataset while the workers start and run, not after the last chunk
+        threading.Thread(target=first_dataset, name="olsbayes-study-xarray", daemon=True).start()
     backend = executors.make_backend(executor, workers=workers, scheduler=scheduler,
                                      start_delay=executors.POOL_START_DELAY)
     try:
@@ -340,7 +286,7 @@ def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tu
         size = chunk_size or max(1, min(1000, study.n_trials,
                                         math.ceil(n_todo / (backend.chunks_per_worker
                                                             * backend.n_workers))))
-        queue = results.todo(size)
+        queue = results.todo(size, 1 if chunk_size else backend.n_workers)  # shrinking at the end
         window = max(2, 2 * backend.n_workers)
         pending: list = []
         chunks: dict[int, tuple[int, np.ndarray]] = {}  # id(future) -> (cell, trials)
@@ -358,8 +304,6 @@ def _execute(study: _Study, results: Results, ckpt: Checkpoint | None, where: tu
                                          study.entropy, cell, idx)
                     chunks[id(fut)] = (cell, idx)
                     pending.append(fut)
-                if backend.name != "serial":  # while the workers run the first chunks
-                    import xarray  # noqa: F401  (for _dataset; ~0.5-1 s the first time)
                 done, pending = backend.wait_first(pending)
                 for fut in done:
                     bar.update(_collect(fut, chunks.pop(id(fut)), study.grid, ckpt, results,
