@@ -172,28 +172,42 @@ def test_spacing_and_separation_on_a_ring():
 
 
 def _all_pairs_spacing(model: Model) -> float:
-    """The definition: median over sub-sensors of the distance to the nearest other one."""
-    if model.kind == "position":
-        pts = model.array.positions
-        d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
-    else:
-        nrm = model.array.normals
-        d = np.arccos(np.clip(nrm @ nrm.T, -1.0, 1.0))
-    np.fill_diagonal(d, np.inf)
-    return float(np.median(d.min(axis=1)))
+    """The definition: median over sub-sensors of the distance to the nearest other one.
+
+    Distances between positions, angles between normals from their chord (2 arcsin(c / 2));
+    every pair, a block of rows at a time.
+    """
+    pts = model.array.positions if model.kind == "position" else model.array.normals
+    nearest = np.empty(len(pts))
+    for lo in range(0, len(pts), 256):
+        d = np.linalg.norm(pts[lo : lo + 256, None, :] - pts[None, :, :], axis=-1)
+        d[np.arange(d.shape[0]), np.arange(lo, lo + d.shape[0])] = np.inf
+        nearest[lo : lo + 256] = d.min(axis=1)
+    if model.kind != "position":
+        nearest = 2 * np.arcsin(np.minimum(nearest / 2, 1.0))
+    return float(np.median(nearest))
 
 
 def test_spacing_equals_the_all_pairs_definition_and_is_kept_on_the_model():
-    # blocks of rows beyond 512 sub-sensors; bit for bit the all-pairs value
+    # every pair up to 2048 sub-sensors, a k-d tree's candidates beyond (ties on the
+    # grids and the ring): bit for bit the all-pairs value either way
     rng = np.random.default_rng(5)
     lat, lon = np.arcsin(rng.uniform(-1, 1, 700)), rng.uniform(-np.pi, np.pi, 700)
-    arrays = [Ring(7), Ring(300), Ring(1100, offset=0.3), Sphere(lon, lat),
-              Sphere.grid(12, 24), Plate.grid(30, 20, 0.5)]
+    arrays = [Ring(3), Ring(7), Ring(300), Ring(1100, offset=0.3), Sphere(lon, lat),
+              Sphere.grid(12, 24), Plate.grid(30, 20, 0.5), Ring(2500, offset=0.1),
+              Sphere.fibonacci(2100), Sphere.grid(50, 60), Plate.grid(60, 50, 1e-3)]
     for array in arrays:
         model = Model(array, 0.01)
         assert model.memo("sensor_spacing") is None
         assert sensor_spacing(model) == _all_pairs_spacing(model)
         assert model.memo("sensor_spacing") == sensor_spacing(model)
+
+
+def test_spacing_of_large_rings_to_rounding():
+    # 2 pi / N from the chord: the normals' rounding (~1e-16) over the angle (6e-5 at
+    # N = 1e5) is ~2e-12 relative; arccos of the dot product would be off by ~3e-8 there
+    for n in (3000, 100_000):
+        assert sensor_spacing(Model(Ring(n), 0.01)) == pytest.approx(2 * np.pi / n, rel=1e-11)
 
 
 def test_trust_flags_unresolvable_pairs_and_weak_sources():
