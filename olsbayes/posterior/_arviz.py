@@ -196,6 +196,7 @@ def to_inference_data(
     centre: np.ndarray,
     predictive: np.ndarray | None = None,
     prior_draws: np.ndarray | None = None,
+    reading_stride: int = 1,
 ):
     """Assemble an ``arviz.InferenceData``.
 
@@ -209,8 +210,9 @@ def to_inference_data(
         ArviZ's ``sample_stats`` group, each (chain, draw): ``lp`` (log
         posterior), ``log_prior`` and ``acceptance_rate`` (1.0 where the walker
         moved at that step, else 0.0).
-    pointwise : ndarray (chain, draw, N) or Deferred
+    pointwise : ndarray (chain, draw', N) or Deferred
         Per-sub-sensor log-likelihood; a :class:`~._lazy.Deferred` is made on first access.
+        ``draw'``: every ``reading_stride``-th draw.
     data : ndarray (N,)
     constants : dict
         ``constant_data`` arrays: ``normals``/``positions`` (N, D) get dims
@@ -223,11 +225,15 @@ def to_inference_data(
         Angles, stored unwrapped around ``centre`` (see the module notes).
     centre : ndarray (P,)
         The circular means of the angles.
-    predictive : ndarray (chain, draw, N), optional
+    predictive : ndarray (chain, draw', N), optional
         Posterior predictive readings: the ``posterior_predictive`` group (``obs``).
     prior_draws : ndarray (1, draw, P), optional
         Independent draws from the prior (raw, exchangeable labels): the
         ``prior`` group.
+    reading_stride : int
+        The per-reading groups (``posterior_predictive``, ``log_likelihood``) hold
+        every this-many-th draw; their ``draw`` coordinate is the posterior's label of
+        each (0, s, 2 s, ...).
     """
     az = import_arviz()
     from ._lazy import Deferred
@@ -250,6 +256,11 @@ def to_inference_data(
             dims=dims,
             attrs=attrs,
         )
+    if reading_stride != 1:  # label the per-reading draws as the posterior's
+        labels = idata.posterior["draw"].values[::reading_stride]
+        for group in ("log_likelihood", "posterior_predictive"):
+            if group in idata.groups():
+                setattr(idata, group, getattr(idata, group).assign_coords(draw=labels))
     if deferred is not None:
         deferred.install(idata.log_likelihood, "obs")
     for group in idata.groups():  # ArviZ keeps ``attrs`` on the object; groups need them
@@ -342,6 +353,11 @@ def loo(idata, pointwise: bool = False):
     ll = idata.log_likelihood["obs"]
     vals = ll.values.reshape(-1, ll.shape[-1])
     const = np.ptp(vals, axis=0) <= 1e-12 * np.maximum(1.0, np.abs(vals).max(axis=0))
+    if idata.posterior.sizes["draw"] != ll.sizes["draw"]:
+        # ArviZ's relative efficiency is the posterior's ESS over the log-likelihood's
+        # draws: the posterior at those draws (every s-th, see to_inference_data)
+        idata = az.InferenceData(posterior=idata.posterior.sel(draw=ll["draw"].values),
+                                 log_likelihood=idata.log_likelihood)
     if not const.any():
         return az.loo(idata, pointwise=pointwise)
     if const.all():

@@ -6,7 +6,10 @@ source 0 (:mod:`olsbayes.posterior._labels`).  The InferenceData also gets the
 posterior predictive readings -- one noisy replicate of the readings per stored
 draw, drawn from the same stream as the prior draws, after them.  Its pointwise
 log-likelihood (read by model comparison only) is computed on first access
-(:mod:`olsbayes.posterior._lazy`), with the same numbers.
+(:mod:`olsbayes.posterior._lazy`), with the same numbers.  These two per-reading
+groups hold every stored draw while they fit in :data:`READING_FLOATS` numbers
+each, else every s-th stored draw (the posterior's own ``draw`` labels), so that
+their memory and time stay bounded whatever the number of sub-sensors.
 """
 
 from __future__ import annotations
@@ -28,13 +31,29 @@ from ._logpost import LogPosterior
 from .audit import at_prior_bound
 from .options import SamplerOptions
 
-__all__ = ["assemble", "crlb_covariance", "predictive_draws", "MAX_STORED_DRAWS",
-           "PRIOR_DRAWS"]
+__all__ = ["assemble", "crlb_covariance", "predictive_draws", "reading_stride",
+           "MAX_STORED_DRAWS", "PRIOR_DRAWS", "READING_FLOATS"]
 
 #: Draws kept per walker at most (further thinning beyond this), bounds memory.
 MAX_STORED_DRAWS = 5000
 #: Independent prior draws stored in the InferenceData ``prior`` group.
 PRIOR_DRAWS = 2000
+#: Numbers (walkers x draws x sub-sensors) a per-reading group -- the posterior
+#: predictive readings, the pointwise log-likelihood -- holds at most before it keeps
+#: every s-th draw only: 256 MiB each.  32 walkers x 5000 draws reach it from about
+#: 210 sub-sensors; a 1000-ring's run of 1600 draws keeps every 2nd draw there.
+READING_FLOATS = 2**25
+
+
+def reading_stride(n_walkers: int, n_draws: int, n_sensors: int) -> int:
+    """Every how many stored draws the per-reading groups keep one (1: all of them).
+
+    The smallest s with ``n_walkers * ceil(n_draws / s) * n_sensors <= READING_FLOATS``
+    (or one draw per walker where even that does not fit).
+    """
+    per_draw = n_walkers * n_sensors
+    room = max(1, READING_FLOATS // max(per_draw, 1))
+    return max(1, -(-n_draws // room))
 
 
 def _kept_steps(tau: np.ndarray, n_steps: int, options: SamplerOptions
@@ -141,27 +160,29 @@ def assemble(model: Model, data: np.ndarray, logpost: LogPosterior, sampler,
     acceptance = np.asarray(sampler.acceptance_fraction)
     constants = _constants(model, prior, centre, n_frames, crlb_cov=crlb_cov,
                            estimate=estimate, tau=tau, acceptance_fraction=acceptance)
+    stride = reading_stride(x.shape[0], x.shape[1], model.n_sensors)
     attrs = {"inference_library": "emcee", "inference_library_version": emcee.__version__,
              "olsbayes_version": __version__, "kind": model.kind,
              "n_sources": prior.n_sources, "n_burn": n_burn, "thin": thin, "n_steps": n_steps,
-             "parameter_names": " ".join(prior.param_names),
+             "parameter_names": " ".join(prior.param_names), "reading_stride": stride,
              **{k: v for k, v in (run_attrs or {}).items() if v is not None}}
     prior_draws = prior.sample((1, PRIOR_DRAWS), rng=gen_prior)
+    xs = x[:, ::stride]  # the draws of the per-reading groups
     if general:
         observed = _general.statistic(model, data, logpost.frames)
-        replicas = _general.predictive(model, prior, x, gen_prior, n_frames)
-        pointwise = logpost.pointwise(x)
+        replicas = _general.predictive(model, prior, xs, gen_prior, n_frames)
+        pointwise = logpost.pointwise(xs)
     else:  # the pointwise likelihood (read by model comparison only) when first read
-        mu = model.response(x[..., :logpost.n_model]) if logpost.n_model else None
-        pointwise = Deferred(functools.partial(logpost.pointwise, x),
-                             x.shape[:-1] + (model.n_sensors,))
-        observed, replicas = data, predictive_draws(model, prior, x, gen_prior, mu)
+        mu = model.response(xs[..., :logpost.n_model]) if logpost.n_model else None
+        pointwise = Deferred(functools.partial(logpost.pointwise, xs),
+                             xs.shape[:-1] + (model.n_sensors,))
+        observed, replicas = data, predictive_draws(model, prior, xs, gen_prior, mu)
     idata = to_inference_data(
         x, prior.param_names, sample_stats={"lp": lpost, "log_prior": prior.log_prob(x),
                                             "acceptance_rate": moved.T.astype(float)},
         pointwise=pointwise, data=observed, constants=constants,
         attrs=attrs, periodic=prior.periodic, centre=estimate,
-        predictive=replicas, prior_draws=prior_draws)
+        predictive=replicas, prior_draws=prior_draws, reading_stride=stride)
     return dict(idata=idata, model=model, prior=prior, n_sources=prior.n_sources,
                 names=tuple(prior.param_names), estimate=estimate, crlb_cov=crlb_cov,
                 start=centre, tau=tau, n_steps=n_steps, n_burn=n_burn, thin=thin,

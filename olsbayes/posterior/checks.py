@@ -82,6 +82,18 @@ class ModelCheck:
                 f"ppp={self.ppp:.3g}, draws={self.n_draws})")
 
 
+def _replicated(result) -> tuple[np.ndarray, np.ndarray]:
+    """The draws (S, P) that have replicated readings, and those readings (S, N).
+
+    Every draw, or every s-th where the ``posterior_predictive`` group is thinned
+    (its ``draw`` labels are the posterior's).
+    """
+    rep = result.idata.posterior_predictive["obs"]
+    where = result.idata.posterior.indexes["draw"].get_indexer(rep["draw"].values)
+    x = result.samples[:, where].reshape(-1, result.n_params)
+    return x, np.asarray(rep.values, dtype=float).reshape(-1, rep.shape[-1])
+
+
 def model_check(result) -> ModelCheck:
     """chi^2/dof at the posterior mean and the posterior predictive p-value of a result.
 
@@ -98,9 +110,7 @@ def model_check(result) -> ModelCheck:
     inferred = prior.noise is not None
     est = np.asarray(result.estimate, dtype=float)
     chi2 = chi_square(model, data, est[:p_model], est[-1] if inferred else None)
-    x = result.samples.reshape(-1, result.n_params)
-    rep = np.asarray(result.idata.posterior_predictive["obs"].values, dtype=float)
-    rep = rep.reshape(-1, data.shape[-1])
+    x, rep = _replicated(result)
     exceed = 0
     for start in range(0, x.shape[0], _CHUNK):
         xs = x[start:start + _CHUNK]
@@ -119,9 +129,7 @@ def _general_check(result, data: np.ndarray, n_frames: int | None) -> ModelCheck
     model, prior = result.model, result.prior
     est = np.asarray(result.estimate, dtype=float)
     chi2 = float(pearson(model, prior, data, est, n_frames))
-    x = result.samples.reshape(-1, result.n_params)
-    rep = np.asarray(result.idata.posterior_predictive["obs"].values, dtype=float)
-    rep = rep.reshape(-1, data.shape[-1])
+    x, rep = _replicated(result)
     exceed = 0
     for start in range(0, x.shape[0], _CHUNK):
         xs = x[start:start + _CHUNK]

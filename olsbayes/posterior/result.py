@@ -39,12 +39,16 @@ class PosteriorResult:
         ``circular``/``units`` attributes), ``posterior_predictive`` (``obs``:
         one replicate of the readings per draw), ``sample_stats`` (``lp``,
         ``log_prior``, ``acceptance_rate``), ``log_likelihood`` (``obs``, one
-        entry per sub-sensor; computed on its first access, as large as the draws
-        times the readings), ``observed_data`` (``obs``), ``constant_data``
-        (``normals``, ``positions`` for plates, ``sigma`` when known, and
-        ``crlb_cov``, ``estimate``, ``tau``, ``start``, ``acceptance_fraction``
-        with named dims) and ``prior``; the attributes name the inference library
-        and versions and hold the provenance (:mod:`olsbayes._provenance`).
+        entry per sub-sensor; computed on its first access), ``observed_data``
+        (``obs``), ``constant_data`` (``normals``, ``positions`` for plates,
+        ``sigma`` when known, and ``crlb_cov``, ``estimate``, ``tau``, ``start``,
+        ``acceptance_fraction`` with named dims) and ``prior``; the attributes
+        name the inference library and versions and hold the provenance
+        (:mod:`olsbayes._provenance`).  The two per-reading groups,
+        ``posterior_predictive`` and ``log_likelihood``, hold every draw up to
+        2^25 numbers each (walkers x draws x sub-sensors), else every s-th draw:
+        their ``draw`` labels are the posterior's, s is the attribute
+        ``reading_stride`` (1 when they hold every draw).
     model : Model
     prior : ScenePrior
     n_sources : int

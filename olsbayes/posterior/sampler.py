@@ -28,7 +28,7 @@ from ..ml import MLResult, fit_ml
 from ..model import Model
 from ..priors import ScenePrior, default_priors
 from ..resolution import antipodal_doubts
-from ._assemble import MAX_STORED_DRAWS, assemble
+from ._assemble import MAX_STORED_DRAWS, READING_FLOATS, assemble
 from ._checkpoint import ChainCheckpoint, problem_key
 from ._general import check_prior_extras
 from ._logpost import LogPosterior, cut_shift
@@ -80,11 +80,12 @@ def _check_memory(n_walkers: int, n_params: int, n_sensors: int, steps: int) -> 
 
     emcee allocates the whole chain (steps, W, P) and log-probabilities (steps, W) at
     the start; the result keeps at most MAX_STORED_DRAWS draws per walker of the
-    parameters (a few copies while relabelling) and of the pointwise log-likelihood
-    (W, D, N).
+    parameters (a few copies while relabelling) and per-reading groups (W, D', N) of at
+    most READING_FLOATS numbers (:func:`~._assemble.reading_stride`).
     """
     kept = min(steps, MAX_STORED_DRAWS)
-    nbytes = 8.0 * n_walkers * (steps * (n_params + 1) + kept * (3 * n_params + n_sensors))
+    readings = min(kept * n_sensors, READING_FLOATS // n_walkers + n_sensors)  # per walker
+    nbytes = 8.0 * n_walkers * (steps * (n_params + 1) + kept * 3 * n_params + readings)
     check_memory(f"n_walkers={n_walkers} x {steps} steps x {n_params} parameters "
                  f"({n_sensors} readings)", nbytes)
 
