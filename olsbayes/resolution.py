@@ -79,11 +79,12 @@ def sensor_spacing(model) -> float:
 
     Angles (ring, sphere): the median angle (rad) between each normal and its
     nearest neighbour -- 2 pi / N on a uniform ring -- taken from the chord ``c``
-    between the unit normals as ``2 arcsin(c / 2)``, accurate to rounding also for
-    the tiny angles of large arrays (``arccos`` of the dot product loses half the
-    digits there).  Positions (plate): the median nearest-neighbour distance of the
-    sub-sensor positions.  Computed once per model (cached on it): over every pair up
-    to 2048 sub-sensors, from a k-d tree's candidates beyond; O(N) memory.
+    between the unit normals as ``2 arcsin(c / 2)``: a relative error of about
+    eps / angle, where ``arccos`` of the dot product has eps / angle^2 (4e-12 against
+    2e-8 on a ring of 100,000).  Positions (plate): the median nearest-neighbour
+    distance of the sub-sensor positions.  Computed once per model (cached on it):
+    over every pair up to 2048 sub-sensors, from a k-d tree's candidates beyond; O(N)
+    memory.
     """
     return model.memo("sensor_spacing", lambda: _nearest_median(model))
 
@@ -113,8 +114,9 @@ def _nearest_distances(pts: np.ndarray) -> np.ndarray:
         from scipy.spatial import cKDTree  # imported for large arrays only
 
         tree = cKDTree(pts)
-    centred = pts - pts.mean(axis=0)  # the ranking's rounding: relative to the array's size
-    sq = np.einsum("ij,ij->i", centred, centred)
+    else:  # centred: the ranking's rounding is relative to the array's size
+        centred = pts - pts.mean(axis=0)
+        sq = np.einsum("ij,ij->i", centred, centred)
     out = np.empty(n)
     step = max(1, _BLOCK // max(width * d, n if tree is None else 1))
     for lo in range(0, n, step):
