@@ -41,7 +41,12 @@ def guarded_line(tree: ast.Module, line: int) -> bool:
     Its body or its ``else``: any such test counts, so that no guarded call is
     ever refused.
     """
-    return any(first <= line <= last for first, last in _guards(tree))
+    return _within(_guards(tree), line)
+
+
+def _within(guards: tuple[tuple[int, int], ...], line: int) -> bool:
+    """Whether ``line`` lies in one of the ``(first, last)`` line ranges ``guards``."""
+    return any(first <= line <= last for first, last in guards)
 
 
 @functools.lru_cache(maxsize=4)
@@ -84,7 +89,7 @@ def unguarded_call() -> tuple[str, int] | None:
         return None
     layout = _layout(path, (info.st_mtime_ns, info.st_size))
     line = frame.f_lineno
-    if layout is None or any(first <= line <= last for first, last in layout[0]):
+    if layout is None or _within(layout[0], line):
         return None
     starts = [first for first in layout[1] if first <= line]
     return path, max(starts, default=line)  # where the statement begins
