@@ -18,10 +18,11 @@ from .._validation import finite_array, positive_float
 from ..circular import wrap_angle
 from ..errors import InputError
 from ..model import Model
+from ..sensitivity import is_clipped_cosine
 
 __all__ = ["default_grid", "default_grid_size", "cached_default_grid", "check_grid",
            "check_atom_memory", "atoms", "grid_step", "NEIGHBOUR", "RING_ATOMS_MAX",
-           "SPHERE_ATOMS", "GRAM_ATOMS", "NOTICE_ENTRIES", "NOTICE_GRAM"]
+           "SPHERE_ATOMS", "GRAM_ATOMS", "ARC_GRAM_SENSORS", "NOTICE_ENTRIES", "NOTICE_GRAM"]
 
 #: Normalised-atom correlation above which two atoms count as one basin (the
 #: neighbourhood of an atom in the searches of the fast fit).
@@ -39,6 +40,13 @@ SPHERE_ATOMS = (1024, 2048)
 #: its projections: every default ring and sphere grid (:data:`SPHERE_ATOMS`).  The
 #: coarse subsets' sampling reuses that matrix (:mod:`olsbayes.ml.fast.coarse`).
 GRAM_ATOMS = 2048
+
+#: Above this many sub-sensors the Gram matrix of a ring's clipped-cosine atoms comes
+#: from the arcs of sub-sensors they light (:func:`olsbayes.ml._numba.search.arc_gram`,
+#: O(M^2 + N)) instead of ``G @ G.T`` (O(M^2 N): 5 s for the default 1024 atoms of a
+#: 100,000-ring); at or below it the product costs no more (equal to rounding) and
+#: keeps the smaller rings' fits to the bit.
+ARC_GRAM_SENSORS = 2048
 
 
 def _ring_grid(model: Model, density: float) -> np.ndarray:
@@ -161,14 +169,25 @@ NOTICE_ENTRIES = 50_000_000
 NOTICE_GRAM = 2e10
 
 
-def _setup_is_long(m: int, n: int) -> bool:
-    """Whether the fast search's set-up on M atoms of N sub-sensors takes seconds."""
-    return m * n > NOTICE_ENTRIES or (m <= GRAM_ATOMS and float(m) * m * n > NOTICE_GRAM)
+def _setup_is_long(m: int, n: int, product: bool = True) -> bool:
+    """Whether the fast search's set-up on M atoms of N sub-sensors takes seconds.
+
+    ``product``: whether the search forms the atoms' Gram matrix as ``G @ G.T``
+    (all but the large rings of :data:`ARC_GRAM_SENSORS`), whose cost then counts.
+    """
+    gram = product and m <= GRAM_ATOMS and float(m) * m * n > NOTICE_GRAM
+    return m * n > NOTICE_ENTRIES or gram
+
+
+def _gram_by_product(model: Model) -> bool:
+    """Whether the fast search forms this model's atoms' Gram matrix as ``G @ G.T``."""
+    arcs = model.kind == "angle" and is_clipped_cosine(model.sensitivity)
+    return not (arcs and model.n_sensors > ARC_GRAM_SENSORS)
 
 
 def _responses(model: Model, grid: np.ndarray) -> np.ndarray:
     """The atoms of ``grid`` (read-only), with one stderr line when their set-up is long."""
-    if _setup_is_long(grid.shape[0], model.n_sensors):
+    if _setup_is_long(grid.shape[0], model.n_sensors, _gram_by_product(model)):
         notice(f"building the search over {grid.shape[0]:,} candidate locations x "
                f"{model.n_sensors:,} sub-sensors (once per model and grid; seconds) ...")
     return _readonly(model.response(np.column_stack([grid, np.ones(grid.shape[0])])))

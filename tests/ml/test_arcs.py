@@ -9,7 +9,7 @@ import pytest
 
 import olsbayes as ob
 from olsbayes.ml import fit_ml
-from olsbayes.ml._numba.search import _arc_correlations
+from olsbayes.ml._numba.search import _arc_correlations, arc_gram
 from olsbayes.ml.atoms import atoms, cached_default_grid
 from olsbayes.ml.fast import search
 
@@ -80,8 +80,55 @@ def test_fits_with_arcs_equal_fits_with_the_atoms(k, monkeypatch):
                           rng=17, size=100)
     arcs = fit_ml(model, data, k, warn=False)
     monkeypatch.setattr(search, "arc_views", lambda *a: search._DENSE)
-    monkeypatch.setattr("olsbayes.ml.fast.pipeline.arc_views", lambda *a: search._DENSE)
     dense = fit_ml(model, data, k, warn=False)
     np.testing.assert_allclose(arcs.log_likelihood, dense.log_likelihood, rtol=0, atol=1e-8)
     assert np.mean(np.all(np.isclose(arcs.params, dense.params, rtol=0, atol=1e-8),
                           axis=1)) >= 0.99
+
+
+@pytest.mark.parametrize("ring", [*RINGS, "uniform 3001"])
+@pytest.mark.parametrize("grid", ["default", "random"])
+def test_arc_gram_equals_the_atoms_products(ring, grid):
+    """The atoms' Gram matrix from their arcs (two runs of shared sub-sensors where
+    two arcs wrap round each other) equals G @ G.T to 1e-13 of its largest entry, on
+    the rings and grids above and a ring beyond the size where fits use it."""
+    array = ob.Ring(3001) if ring == "uniform 3001" else RINGS[ring]()
+    model = ob.Model(array, 1e-2)
+    angles = cached_default_grid(model)
+    if grid == "random":
+        phi = np.arctan2(model.array.normals[:, 1], model.array.normals[:, 0])
+        rand = np.random.default_rng(6).uniform(-np.pi, np.pi, 200)
+        angles = np.concatenate([rand, phi[:5] + np.pi / 2, phi[:5] - np.pi / 2])[:, None]
+    g = atoms(model, angles)
+    arcs = search.arc_views(g, model.array.normals, angles)
+    out = np.empty((g.shape[0], g.shape[0]))
+    arc_gram(arcs, out)
+    ref = g @ g.T
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-13 * np.max(ref))
+    np.testing.assert_array_equal(out, out.T)
+
+
+def test_large_rings_fit_through_the_arcs_gram(monkeypatch):
+    """Beyond ARC_GRAM_SENSORS sub-sensors the search's Gram matrix comes from the
+    arcs and the unit atoms, which no scan reads, are not formed; fits of 20 data
+    vectors of a 3001-ring (K = 2, 3) reach the optima of fits through G @ G.T."""
+    model = ob.Model(ob.Ring(3001), 1e-2)
+    grid = cached_default_grid(model)
+    g = atoms(model, grid)
+    arcs = search.arc_views(g, model.array.normals, grid)
+    views = search._atom_views(g, arcs)
+    assert views[3].shape == (g.shape[0], 0)
+    out = np.empty_like(views[1])
+    arc_gram(arcs, out)
+    np.testing.assert_array_equal(views[1], out)
+    for k in (2, 3):
+        ang = 0.4 + 2 * np.pi * np.arange(k) / k + 0.2 * np.arange(k)
+        data = model.simulate(ob.Scene(directions=ang, intensities=np.linspace(1.0, 0.5, k)),
+                              rng=k, size=20)
+        by_arcs = fit_ml(model, data, k, warn=False)
+        with monkeypatch.context() as mp:
+            mp.setattr(search, "ARC_GRAM_SENSORS", 10**9)
+            by_product = fit_ml(model, data, k, warn=False)
+        np.testing.assert_allclose(by_arcs.log_likelihood, by_product.log_likelihood,
+                                   rtol=0, atol=1e-8)
+        np.testing.assert_allclose(by_arcs.params, by_product.params, rtol=0, atol=1e-8)

@@ -20,7 +20,7 @@ from ..atoms import NEIGHBOUR
 from .hemispheres import tree_correlations
 from .linalg import _solve
 
-__all__ = ["intensities_trials", "neighbours", "ring_arcs", "search_trials"]
+__all__ = ["arc_gram", "intensities_trials", "neighbours", "ring_arcs", "search_trials"]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
@@ -234,6 +234,39 @@ def _arc_correlations(s, arcs, px, py, out):  # pragma: no cover - compiled
     for a in range(out.size):
         b, e = lo[a], lo[a] + cnt[a]
         out[a] = ct[a] * (px[e] - px[b]) + st[a] * (py[e] - py[b])
+
+
+@numba.njit(cache=True)
+def arc_gram(arcs, out):  # pragma: no cover - compiled
+    """out = g @ g.T (M, M) for ring atoms whose lit sub-sensors are arcs, in O(M^2 + N).
+
+    Two atoms' product is ``(ca nx + sa ny)(cb nx + sb ny)`` summed over the
+    sub-sensors both light, one or two runs in angular order: the intersections
+    of atom a's arc with atom b's arc shifted by -N, 0 and N turns (an arc holds at
+    most N sub-sensors, so no sub-sensor counts twice), each a difference of
+    prefix sums of nx^2, nx ny and ny^2 over the sub-sensors taken twice round.
+    """
+    order, nx, ny, lo, cnt, ct, st = arcs
+    n, m = order.size, lo.size
+    pxx, pxy, pyy = np.zeros(2 * n + 1), np.zeros(2 * n + 1), np.zeros(2 * n + 1)
+    for j in range(2 * n):
+        q = j if j < n else j - n
+        pxx[j + 1] = pxx[j] + nx[q] * nx[q]
+        pxy[j + 1] = pxy[j] + nx[q] * ny[q]
+        pyy[j + 1] = pyy[j] + ny[q] * ny[q]
+    for a in range(m):
+        la, ea = lo[a], lo[a] + cnt[a]
+        for b in range(a, m):
+            xx = xy = yy = 0.0
+            for shift in (-n, 0, n):
+                b0, e0 = max(la, lo[b] + shift), min(ea, lo[b] + cnt[b] + shift)
+                if e0 > b0:
+                    xx += pxx[e0] - pxx[b0]
+                    xy += pxy[e0] - pxy[b0]
+                    yy += pyy[e0] - pyy[b0]
+            v = ct[a] * ct[b] * xx + (ct[a] * st[b] + st[a] * ct[b]) * xy + st[a] * st[b] * yy
+            out[a, b] = v
+            out[b, a] = v
 
 
 @numba.njit(cache=True)

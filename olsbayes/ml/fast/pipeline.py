@@ -58,14 +58,13 @@ import dataclasses
 import numpy as np
 
 from ...model import Model
-from ...sensitivity import is_clipped_cosine
 from ..atoms import atoms, grid_step
 from ..outcome import FitOutcome
 from .escalate import escalate
 from .options import FastOptions
 from .refine import kink_hops, kink_polish, refine_starts, restart
 from .scatter import scattered
-from .search import arc_views, grid_search, tree_views
+from .search import grid_search, model_views
 from .slide import slide
 
 __all__ = ["fit_fast"]
@@ -82,10 +81,7 @@ def fit_fast(model: Model, data: np.ndarray, n_sources: int, grid: np.ndarray,
     """
     k = n_sources
     g = atoms(model, grid)
-    ring = model.kind == "angle" and is_clipped_cosine(model.sensitivity)
-    arcs = arc_views(g, model.array.normals if ring else None, grid if ring else None)
-    sphere = model.kind == "lonlat" and is_clipped_cosine(model.sensitivity)
-    tree = tree_views(g, model.array.normals if sphere else None, grid if sphere else None)
+    arcs, tree = model_views(model, g, grid)
     idx, inten, _ = grid_search(g, data, k, options, arcs, tree)
     starts = np.concatenate([grid[idx], inten[..., None]], axis=-1)  # (T, C, K, d+1)
     out = refine_starts(model, data, starts, options, keep=True)

@@ -23,11 +23,13 @@ import weakref
 import numpy as np
 
 from ...geometry import lonlat_to_unit
-from ..atoms import GRAM_ATOMS, NEIGHBOUR
+from ...model import Model
+from ...sensitivity import is_clipped_cosine
+from ..atoms import ARC_GRAM_SENSORS, GRAM_ATOMS, NEIGHBOUR
 from .options import FastOptions
 from .tuples import TuplePlan, tuple_plans
 
-__all__ = ["arc_views", "grid_search", "tree_views"]
+__all__ = ["arc_views", "grid_search", "model_views", "tree_views"]
 
 
 def _frozen_view(a: np.ndarray, dtype: type = float) -> np.ndarray:
@@ -74,21 +76,40 @@ def _gram_neighbours(gram: np.ndarray, gnorm2: np.ndarray) -> tuple[np.ndarray, 
     return indptr, np.nonzero(near)[1].astype(np.int64)
 
 
-def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
+_ARC_ATOMS: dict = {}  # id -> (weakref, views) of ring atoms whose Gram came from their arcs
+
+
+def _atom_views(g: np.ndarray, arcs: tuple | None = None) -> tuple[np.ndarray, ...]:
     """Read-only views of the atoms and of the arrays derived from them.
 
-    The atoms, their Gram matrix (empty when M > :data:`~olsbayes.ml.atoms.GRAM_ATOMS`),
-    squared norms, the unit atoms and the CSR neighbour lists of the unit atoms: from
-    their dot products when M^2 N <= :data:`_NEIGHBOUR_WORK`, else from the Gram matrix
-    (:func:`_gram_neighbours`), else empty (the searches then scan every atom).
+    The atoms; their Gram matrix (empty when M > :data:`~olsbayes.ml.atoms.GRAM_ATOMS`;
+    from ``arcs``, the ring atoms' arcs of :func:`arc_views`, beyond
+    :data:`~olsbayes.ml.atoms.ARC_GRAM_SENSORS` sub-sensors); squared norms; the unit
+    atoms; and the CSR neighbour lists of the unit atoms: from their dot products when
+    M^2 N <= :data:`_NEIGHBOUR_WORK`, else from the Gram matrix
+    (:func:`_gram_neighbours`), else empty (the searches then scan every atom).  The
+    unit atoms are read only by those two scans; where neither runs they are an
+    (M, 0) placeholder.  Views made with arcs are memoised apart from those without.
     """
     from .._numba import search as sk
 
+    m, n = g.shape
+    by_arcs = arcs is not None and arcs[3].size > 0 and n > ARC_GRAM_SENSORS
+
     def make(a: np.ndarray) -> tuple[np.ndarray, ...]:
         gnorm2 = np.einsum("mn,mn->m", a, a)
-        unit = _frozen_view(a / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None])
-        gram = a @ a.T if a.shape[0] <= GRAM_ATOMS else np.zeros((0, 0))
-        if a.shape[0] ** 2 * a.shape[1] <= _NEIGHBOUR_WORK:
+        gram = np.zeros((0, 0))
+        if m <= GRAM_ATOMS and by_arcs:
+            gram = np.empty((m, m))
+            sk.arc_gram(arcs, gram)
+        elif m <= GRAM_ATOMS:
+            gram = a @ a.T
+        scan = m * m * n <= _NEIGHBOUR_WORK
+        unit = np.zeros((m, 0))
+        if scan or not gram.size:
+            unit = a / np.sqrt(np.maximum(gnorm2, 1e-300))[:, None]
+        unit = _frozen_view(unit)
+        if scan:
             indptr, indices = sk.neighbours(unit)
         elif gram.size:
             indptr, indices = _gram_neighbours(gram, gnorm2)
@@ -97,7 +118,8 @@ def _atom_views(g: np.ndarray) -> tuple[np.ndarray, ...]:
         return (_frozen_view(a), _frozen_view(gram), _frozen_view(gnorm2), unit,
                 _frozen_view(indptr, np.int64), _frozen_view(indices, np.int64))
 
-    return _memo(g, make, readonly=not g.flags.writeable)
+    return _memo(g, make, readonly=not g.flags.writeable,
+                 cache=_ARC_ATOMS if by_arcs else None)
 
 
 def _law_tol(g: np.ndarray) -> float:
@@ -210,6 +232,19 @@ def tree_views(g: np.ndarray, normals: np.ndarray | None, lonlat: np.ndarray | N
     return _views(g, normals, lonlat, _sphere_tree, _NO_TREE, _TREES)
 
 
+def model_views(model: Model, g: np.ndarray, grid: np.ndarray) -> tuple[tuple, tuple]:
+    """The ring arcs and sphere tree of a model's atoms g (M, N) on ``grid`` (M, d).
+
+    :func:`arc_views` for a ring with the clipped cosine, :func:`tree_views` for a
+    sphere with it; the empty views of the other.
+    """
+    law = is_clipped_cosine(model.sensitivity)
+    ring, sphere = law and model.kind == "angle", law and model.kind == "lonlat"
+    normals = model.array.normals
+    return (arc_views(g, normals if ring else None, grid if ring else None),
+            tree_views(g, normals if sphere else None, grid if sphere else None))
+
+
 def _plan_arcs(plan: TuplePlan, arcs: tuple) -> tuple:
     """The arcs of a plan's coarse atoms (those of its subset), memoised per plan.
 
@@ -275,7 +310,7 @@ def grid_search(g: np.ndarray, data: np.ndarray, k: int, options: FastOptions,
     from .._numba import search as sk  # numba is imported on first use
     from .._numba import tuples as tk
 
-    gv, gram, gnorm2, unit, indptr, indices = _atom_views(g)
+    gv, gram, gnorm2, unit, indptr, indices = _atom_views(g, arcs)
     dtype = np.float32 if options.single_precision else np.float64
     plans = (tuple_plans(g, k, options.n_coarse, options.tuple_budget, dtype, gram)
              if k >= 2 else [])

@@ -36,7 +36,7 @@ from ..atoms import NEIGHBOUR
 from ..outcome import FitOutcome
 from .options import FastOptions
 from .refine import _improves, _known, refine_starts
-from .search import _atom_views
+from .search import _atom_views, model_views
 
 __all__ = ["slide", "relocations", "distinct_best"]
 
@@ -83,7 +83,7 @@ def relocations(model: Model, g: np.ndarray, grid: np.ndarray, data: np.ndarray,
     current source and of the atoms placed before; the intensities of all sources
     are then solved by least squares (clipped at 0).
     """
-    gv, gram, gnorm2 = _atom_views(g)[:3]
+    gv, gram, gnorm2 = _atom_views(g, model_views(model, g, grid)[0])[:3]
     t, d1 = x.shape[0], model.n_loc + 1
     k = x.shape[1] // d1
     blocks = x.reshape(t, k, d1)
