@@ -42,9 +42,11 @@ import numpy as np
 from .antipodal import pair_offsets, source_pairs
 from .circular import wrap_angle
 from .errors import NearResolutionWarning
+from .geometry import lonlat_to_unit
 
 __all__ = ["gaussian_doubts", "warn_gaussian_doubts", "antipodal_doubts", "min_separation",
-           "sensor_spacing", "weak_sources", "RESOLUTION_SPACINGS", "WEAK_SDS", "ANTIPODAL_DOUBT"]
+           "source_distances", "sensor_spacing", "weak_sources", "RESOLUTION_SPACINGS",
+           "WEAK_SDS", "ANTIPODAL_DOUBT"]
 
 #: Sources closer than this many sensor spacings are near the resolution limit.
 RESOLUTION_SPACINGS = 1.5
@@ -132,25 +134,38 @@ def _nearest_distances(pts: np.ndarray) -> np.ndarray:
     return out
 
 
-def min_separation(model, x: np.ndarray) -> np.ndarray:
-    """Smallest source-to-source distance of each row of ``x`` (T, P), in sensor spacings."""
+def source_distances(model, x: np.ndarray) -> np.ndarray:
+    """Distance of each source pair of each row of ``x`` (T, P): (T, K (K - 1) / 2).
+
+    Pairs in the order of :func:`~olsbayes.antipodal.source_pairs`.  Ring: the
+    wrapped angle difference (rad); sphere: the great-circle angle (rad) from the
+    chord between unit vectors, ``2 arcsin(c / 2)``, exact also for close pairs
+    (``arccos`` of their dot product keeps half the digits); plate: the Euclidean
+    distance (length units).
+    """
     t, p = x.shape
     k = p // (model.n_loc + 1)
-    if k < 2:
-        return np.full(t, np.inf)
     loc = x.reshape(t, k, model.n_loc + 1)[..., :-1]
     i, j = source_pairs(k)
     if model.kind == "position":
-        d = np.linalg.norm(loc[:, i] - loc[:, j], axis=-1)
-    elif model.kind == "angle":  # the wrapped difference: exact also for close pairs
+        return np.linalg.norm(loc[:, i] - loc[:, j], axis=-1)
+    if model.kind == "angle":
         theta = loc[..., 0]
-        d = np.abs(wrap_angle(theta[:, j] - theta[:, i]))
-    else:
-        lon, lat = loc[..., 0], loc[..., 1]
-        u = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
-                     axis=-1)
-        d = np.arccos(np.clip(np.sum(u[:, i] * u[:, j], axis=-1), -1.0, 1.0))
-    return d.min(axis=1) / sensor_spacing(model)
+        return np.abs(wrap_angle(theta[:, j] - theta[:, i]))
+    u = lonlat_to_unit(loc[..., 0], loc[..., 1])
+    chord = np.linalg.norm(u[:, i] - u[:, j], axis=-1)
+    return 2.0 * np.arcsin(np.minimum(0.5 * chord, 1.0))
+
+
+def min_separation(model, x: np.ndarray) -> np.ndarray:
+    """Smallest source-to-source distance of each row of ``x`` (T, P), in sensor spacings.
+
+    inf for rows of fewer than two sources (:func:`source_distances` of the pairs
+    over :func:`sensor_spacing`).
+    """
+    if x.shape[1] // (model.n_loc + 1) < 2:
+        return np.full(x.shape[0], np.inf)
+    return source_distances(model, x).min(axis=1) / sensor_spacing(model)
 
 
 def weak_sources(model, x: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -59,8 +59,8 @@ from .criteria import LOOResult, aic, bic, loo_compare
 from .diagnostics import (
     THRESHOLDS,
     check_thresholds,
+    closest_pair,
     laplace_trust,
-    min_separation,
 )
 from .importance import importance_log_evidence
 from .laplace import (
@@ -112,7 +112,7 @@ __all__ = [
     "scaled_maxcall",
     "laplace_trust",
     "sensor_spacing",
-    "min_separation",
+    "closest_pair",
     "THRESHOLDS",
     "check_thresholds",
     "bic",

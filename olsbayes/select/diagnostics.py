@@ -17,13 +17,13 @@ from types import MappingProxyType
 import numpy as np
 
 from .._validation import positive_float
+from ..antipodal import source_pairs
 from ..bounds import bound_covariance
 from ..errors import InputError
-from ..geometry import lonlat_to_unit
 from ..model import Model
-from ..resolution import sensor_spacing
+from ..resolution import sensor_spacing, source_distances
 
-__all__ = ["min_separation", "laplace_trust", "check_thresholds", "THRESHOLDS"]
+__all__ = ["closest_pair", "laplace_trust", "check_thresholds", "THRESHOLDS"]
 
 #: Default thresholds of :func:`laplace_trust` (read-only).
 THRESHOLDS: Mapping[str, float] = MappingProxyType({
@@ -55,29 +55,21 @@ def check_thresholds(thresholds: Mapping[str, float] | None) -> dict[str, float]
     return out
 
 
-def min_separation(model: Model, params: np.ndarray) -> tuple[float, tuple[int, int]]:
-    """Smallest distance between two sources of ``params`` and the pair's indices.
+def closest_pair(model: Model, params: np.ndarray) -> tuple[float, tuple[int, int]]:
+    """The two closest sources of ``params`` (P,): their distance and indices (i < j).
 
-    Ring: circular angle difference (rad); sphere: great-circle angle (rad);
-    plate: Euclidean distance.  ``(inf, (-1, -1))`` for fewer than two sources.
+    Distances as :func:`olsbayes.resolution.source_distances` gives them (ring and
+    sphere: angle in rad; plate: Euclidean); the first such pair in the order of
+    :func:`~olsbayes.antipodal.source_pairs` on ties.  ``(inf, (-1, -1))`` for fewer
+    than two sources.
     """
     k = model.n_sources_of(params)
     if k < 2:
         return np.inf, (-1, -1)
-    loc = np.asarray(params, float).reshape(k, model.n_loc + 1)[:, :-1]
-    if model.kind == "position":
-        d = np.linalg.norm(loc[:, None, :] - loc[None, :, :], axis=-1)
-    else:
-        if model.kind == "angle":
-            th = loc[:, 0]
-            u = np.column_stack([np.cos(th), np.sin(th)])
-        else:
-            lon, lat = loc[:, 0], loc[:, 1]
-            u = lonlat_to_unit(lon, lat)
-        d = np.arccos(np.clip(u @ u.T, -1.0, 1.0))
-    np.fill_diagonal(d, np.inf)
-    i, j = np.unravel_index(np.argmin(d), d.shape)
-    return float(d[i, j]), (int(min(i, j)), int(max(i, j)))
+    d = source_distances(model, np.asarray(params, float)[None, :])[0]
+    q = int(np.argmin(d))
+    i, j = source_pairs(k)
+    return float(d[q]), (int(i[q]), int(j[q]))
 
 
 def laplace_trust(
@@ -136,7 +128,7 @@ def laplace_trust(
         if snr.min() < th["snr"]:
             q = int(np.argmin(snr))
             reasons.append(f"weak source I[{q}] = {inten[q]:.3g} ({snr[q]:.1f} sd above 0)")
-    sep, (i, j) = min_separation(model, params)
+    sep, (i, j) = closest_pair(model, params)
     if np.isfinite(sep):
         sep_h = sep / sensor_spacing(model)
         stats["separation"] = sep_h

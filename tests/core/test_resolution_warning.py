@@ -22,6 +22,7 @@ from olsbayes.resolution import (
     antipodal_doubts,
     gaussian_doubts,
     min_separation,
+    source_distances,
     weak_sources,
 )
 
@@ -137,6 +138,26 @@ def test_batched_pair_measures_equal_the_per_scene_ones(k):
     full[:, np.arange(k), np.arange(k)] = np.inf
     np.testing.assert_allclose(min_separation(model, x), full.min(axis=(1, 2)) / H,
                                rtol=1e-13, atol=1e-13)
+
+
+def test_sphere_source_distances_keep_every_digit_of_close_pairs():
+    """source_distances on a sphere equals the haversine formula of the same points to
+    1e-15 rad (the rounding of the unit vectors) plus 1e-13 relative, for pairs 1e-9 to
+    3 rad apart; arccos of the dot product errs by up to ~1e-8 rad near 0."""
+    rng = np.random.default_rng(4)
+    model = ob.Model(ob.Sphere.fibonacci(40), 0.01)
+    lon0, lat0 = rng.uniform(-np.pi, np.pi, 60), rng.uniform(-1.4, 1.4, 60)
+    sep = np.logspace(-9, np.log10(3.0), 60)
+    bearing = rng.uniform(0, 2 * np.pi, 60)
+    lat1 = np.arcsin(np.sin(lat0) * np.cos(sep) + np.cos(lat0) * np.sin(sep) * np.cos(bearing))
+    lon1 = lon0 + np.arctan2(np.sin(bearing) * np.sin(sep) * np.cos(lat0),
+                             np.cos(sep) - np.sin(lat0) * np.sin(lat1))
+    x = np.column_stack([lon0, lat0, np.ones(60), lon1, lat1, np.ones(60)])
+    hav = np.sin((lat1 - lat0) / 2) ** 2 + np.cos(lat0) * np.cos(lat1) * np.sin(
+        (lon1 - lon0) / 2) ** 2
+    ref = 2 * np.arcsin(np.sqrt(hav))
+    np.testing.assert_allclose(source_distances(model, x)[:, 0], ref, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(ref, sep, rtol=1e-6)  # the pairs are the separations asked for
 
 
 def test_four_sources_with_a_near_antipodal_pair_warn():

@@ -12,10 +12,10 @@ from olsbayes import Model, Plate, Ring, Sphere
 from olsbayes.errors import ConvergenceWarning, InputError
 from olsbayes.priors import ScenePrior, Uniform
 from olsbayes.select import (
+    closest_pair,
     laplace_log_evidence,
     laplace_trust,
     linear_gaussian_log_evidence,
-    min_separation,
     model_laplace,
     nested_log_evidence,
     noise_log_evidence,
@@ -164,11 +164,22 @@ def test_nested_rejects_bad_options():
         nested_log_evidence(lambda x: 0.0, lambda u: u, 1, sample="nope")
 
 
-def test_spacing_and_separation_on_a_ring():
+def test_spacing_and_closest_pair():
+    """The closest pair across the ring's wrap, on a sphere and on a plate; the first
+    pair (i < j, row by row) on ties; inf and (-1, -1) for one source."""
     assert sensor_spacing(RING) == pytest.approx(2 * np.pi / 30)
-    sep, pair = min_separation(RING, np.array([3.1, 1.0, -3.1, 1.0, 0.0, 1.0]))
+    sep, pair = closest_pair(RING, np.array([3.1, 1.0, -3.1, 1.0, 0.0, 1.0]))
     assert sep == pytest.approx(2 * np.pi - 6.2) and pair == (0, 1)
-    assert min_separation(RING, np.array([0.1, 1.0]))[0] == np.inf
+    assert closest_pair(RING, np.array([0.1, 1.0])) == (np.inf, (-1, -1))
+    assert closest_pair(RING, np.array([0.0, 1.0, 1.0, 1.0, 2.0, 1.0, 3.0, 1.0]))[1] == (0, 1)
+    sphere = Model(Sphere.fibonacci(40), 0.01)
+    sep, pair = closest_pair(sphere, np.array([0.0, 0.5, 1.0, 2.0, -0.3, 1.0, 0.0, 0.5 + 1e-7,
+                                               1.0]))
+    assert pair == (0, 2) and sep == pytest.approx(1e-7, rel=1e-9)
+    plate = Model(Plate.grid(4, 4, 1.0), 0.01)
+    sep, pair = closest_pair(plate, np.array([0.0, 0.0, 3.0, 1.0, 5.0, 1.0, 3.0, 1.0,
+                                              5.0, 3.0, 3.0, 1.0]))
+    assert pair == (1, 2) and sep == pytest.approx(2.0)
 
 
 def _all_pairs_spacing(model: Model) -> float:
