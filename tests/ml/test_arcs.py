@@ -86,13 +86,18 @@ def test_fits_with_arcs_equal_fits_with_the_atoms(k, monkeypatch):
                           axis=1)) >= 0.99
 
 
-@pytest.mark.parametrize("ring", [*RINGS, "uniform 3001"])
+GRAM_RINGS = {**RINGS, "uniform 3001": lambda: ob.Ring(3001),
+              "a 80 deg fan": lambda: planar(np.linspace(-0.7, 0.7, 25))}
+
+
+@pytest.mark.parametrize("ring", list(GRAM_RINGS))
 @pytest.mark.parametrize("grid", ["default", "random"])
 def test_arc_gram_equals_the_atoms_products(ring, grid):
     """The atoms' Gram matrix from their arcs (two runs of shared sub-sensors where
     two arcs wrap round each other) equals G @ G.T to 1e-13 of its largest entry, on
-    the rings and grids above and a ring beyond the size where fits use it."""
-    array = ob.Ring(3001) if ring == "uniform 3001" else RINGS[ring]()
+    the rings and grids above, a ring beyond the size where fits use it, and a fan of
+    sub-sensors facing 80 deg, whose atoms light all of them or none."""
+    array = GRAM_RINGS[ring]()
     model = ob.Model(array, 1e-2)
     angles = cached_default_grid(model)
     if grid == "random":
