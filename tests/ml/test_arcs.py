@@ -87,7 +87,7 @@ def test_fits_with_arcs_equal_fits_with_the_atoms(k, monkeypatch):
 
 
 GRAM_RINGS = {**RINGS, "uniform 3001": lambda: ob.Ring(3001),
-              "a 80 deg fan": lambda: planar(np.linspace(-0.7, 0.7, 25))}
+              "an 80 deg fan": lambda: planar(np.linspace(-0.7, 0.7, 25))}
 
 
 @pytest.mark.parametrize("ring", list(GRAM_RINGS))
