@@ -16,7 +16,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from .._validation import positive_float
+from .._validation import finite_array, positive_float
 from ..antipodal import source_pairs
 from ..bounds import bound_covariance
 from ..errors import InputError
@@ -63,10 +63,11 @@ def closest_pair(model: Model, params: np.ndarray) -> tuple[float, tuple[int, in
     :func:`~olsbayes.antipodal.source_pairs` on ties.  ``(inf, (-1, -1))`` for fewer
     than two sources.
     """
+    params = finite_array("params", params, ndim=1)
     k = model.n_sources_of(params)
     if k < 2:
         return np.inf, (-1, -1)
-    d = source_distances(model, np.asarray(params, float)[None, :])[0]
+    d = source_distances(model, params[None, :])[0]
     q = int(np.argmin(d))
     i, j = source_pairs(k)
     return float(d[q]), (int(i[q]), int(j[q]))

@@ -180,6 +180,10 @@ def test_spacing_and_closest_pair():
     sep, pair = closest_pair(plate, np.array([0.0, 0.0, 3.0, 1.0, 5.0, 1.0, 3.0, 1.0,
                                               5.0, 3.0, 3.0, 1.0]))
     assert pair == (1, 2) and sep == pytest.approx(2.0)
+    for bad in (np.array([1.0, 2.0, 3.0]), np.array([[0.1, 1.0, 0.2, 1.0]]),
+                np.array([np.nan, 1.0, 0.5, 1.0])):
+        with pytest.raises(InputError, match="params"):
+            closest_pair(RING, bad)
 
 
 def _all_pairs_spacing(model: Model) -> float:
