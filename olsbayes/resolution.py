@@ -95,9 +95,18 @@ def _nearest_median(model) -> float:
     far = model.kind != "position"
     pts = np.asarray(model.array.normals if far else model.array.positions, dtype=np.float64)
     nearest = _nearest_distances(pts)
-    if far:  # chord -> angle; pi for a lone sub-sensor (no neighbour: inf)
-        nearest = 2.0 * np.arcsin(np.minimum(0.5 * nearest, 1.0))
+    if far:  # pi for a lone sub-sensor (no neighbour: inf)
+        nearest = _chord_angle(nearest)
     return float(np.median(nearest))
+
+
+def _chord_angle(chord: np.ndarray) -> np.ndarray:
+    """The angle (rad) between unit vectors a ``chord`` apart, ``2 arcsin(c / 2)``.
+
+    Relative error about eps / angle, where ``arccos`` of their dot product has
+    eps / angle^2; chords beyond 2 (inf) give pi.
+    """
+    return 2.0 * np.arcsin(np.minimum(0.5 * chord, 1.0))
 
 
 def _nearest_distances(pts: np.ndarray) -> np.ndarray:
@@ -153,8 +162,7 @@ def source_distances(model, x: np.ndarray) -> np.ndarray:
         theta = loc[..., 0]
         return np.abs(wrap_angle(theta[:, j] - theta[:, i]))
     u = lonlat_to_unit(loc[..., 0], loc[..., 1])
-    chord = np.linalg.norm(u[:, i] - u[:, j], axis=-1)
-    return 2.0 * np.arcsin(np.minimum(0.5 * chord, 1.0))
+    return _chord_angle(np.linalg.norm(u[:, i] - u[:, j], axis=-1))
 
 
 def min_separation(model, x: np.ndarray) -> np.ndarray:
