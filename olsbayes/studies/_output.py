@@ -35,7 +35,7 @@ def seed_attrs(entropy: int) -> dict[str, Any]:
 def dataset_seed(ds: Any) -> int:
     """The root seed of a study dataset (as ``rng`` for :func:`run_study` to repeat it)."""
     seed = ds.attrs["seed"]
-    if isinstance(seed, str):  # written by an older version
+    if isinstance(seed, str):  # a seed stored as decimal text
         return int(seed)
     words = np.atleast_1d(np.asarray(seed)).astype(np.uint64)
     return sum(int(w) << (64 * i) for i, w in enumerate(words))

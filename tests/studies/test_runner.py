@@ -130,6 +130,7 @@ def test_dataset_layout_statistics_and_netcdf_roundtrip(tmp_path):
     back = xr.load_dataset(out, engine="h5netcdf")
     assert back.identical(ds)
     assert dataset_seed(back) == 11
+    assert dataset_seed(back.assign_attrs(seed="11")) == 11  # a seed stored as decimal text
 
 
 def test_seed_without_a_value_given_is_numeric_and_repeats_the_study(tmp_path):
