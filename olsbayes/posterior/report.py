@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import atomic_path, ensure_dir, write_text_atomic
+from .._notice import notice
 from .._validation import file_path
 from .result import PosteriorResult
 
@@ -218,7 +219,8 @@ def write_report(
     :meth:`PosteriorResult.from_netcdf`), report.html and, with ``selection``,
     k_posterior.png.  Every file is written atomically; report.html embeds the
     images (base64), so it can be mailed on its own, and also links the files
-    beside it.
+    beside it.  The figures take seconds, so one line on stderr says so as the
+    call starts (the command line's ``--quiet`` silences it).
 
     Parameters
     ----------
@@ -240,6 +242,7 @@ def write_report(
     from ..plotting.corner import plot_corner, plot_trace
 
     out = ensure_dir(file_path("folder", folder), "report folder")
+    notice(f"writing the posterior report to {out} (figures, tables, NetCDF, HTML) ...")
     files = {"corner": out / "corner.png", "trace": out / "trace.png", "ppc": out / "ppc.png",
              "summary_csv": out / "summary.csv", "summary_json": out / "summary.json",
              "netcdf": out / "posterior.nc"}

@@ -23,10 +23,13 @@ def small_result():
     return res, truth
 
 
-def test_report_folder_has_every_file(small_result, tmp_path):
+def test_report_folder_has_every_file(small_result, tmp_path, capsys):
     res, truth = small_result
     files = write_report(res, tmp_path / "rep", truths=Scene(directions=[truth[0]],
                                                                 intensities=[truth[1]]))
+    # the figures take seconds: one status line says so as the call starts
+    assert capsys.readouterr().err == (f"olsbayes: writing the posterior report to "
+                                       f"{tmp_path / 'rep'} (figures, tables, NetCDF, HTML) ...\n")
     names = {"corner.png", "trace.png", "ppc.png", "summary.csv", "summary.json",
              "posterior.nc", "report.html"}
     assert names <= {p.name for p in (tmp_path / "rep").iterdir()}
