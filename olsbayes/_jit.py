@@ -10,7 +10,8 @@ process compiles again).  It also prints one line on stderr the first time in a
 process that one of the package's kernels is compiled rather than loaded, since
 compiling takes far longer than loading (``olsbayes compile`` does it ahead of
 time; :func:`olsbayes._notice.notice`, which the command line's ``--quiet``
-silences).
+silences), and one more when a later call starts compiling again
+(:func:`say_compiling`).
 
 numba stamps a cached kernel with the source of its own module only, yet the
 machine code holds every kernel it calls from other modules: after an edit or an
@@ -24,20 +25,28 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import math
 import os
 import sys
 import tempfile
+import time
 import warnings
 from pathlib import Path
 
 from ._notice import notice
 from .errors import OlsBayesWarning
 
-__all__ = ["prepare", "cache_location", "announced", "kernels_stamp"]
+__all__ = ["prepare", "cache_location", "announced", "say_compiling", "kernels_stamp",
+           "AGAIN_AFTER", "BURST_GAP"]
 
 _PACKAGE = Path(__file__).resolve().parent
 _KERNELS = _PACKAGE / "ml" / "_numba"
 _STATE: dict[str, object] = {}  # what prepare() decided, once per process
+
+#: Seconds after a compile line before a new burst of compiling says so again.
+AGAIN_AFTER = 10.0
+#: Seconds between one compile's end and the next's start that begin a new burst.
+BURST_GAP = 0.1
 
 
 def _writable(folder: Path) -> bool:
@@ -101,7 +110,8 @@ def prepare() -> None:
     if _STATE:
         return
     how, folder = _choose()
-    _STATE.update(how=how, folder=folder, said=False)
+    _STATE.update(how=how, folder=folder, said=False, again=True, said_at=-math.inf,
+                  ended=-math.inf)
     if how == "temporary":
         warnings.warn(f"the compiled kernels are cached in the temporary folder {folder} (the "
                       "package's folder and the user cache are not writable); set "
@@ -122,7 +132,7 @@ def prepare() -> None:
     saving = how not in ("none", "prebuilt, read-only")
 
     class CompileNotice(event.Listener):
-        """One stderr line when a package kernel starts compiling (not loading)."""
+        """A stderr line when package kernels start compiling (not loading)."""
 
         def on_start(self, ev) -> None:
             dispatcher = ev.data["dispatcher"]
@@ -132,21 +142,39 @@ def prepare() -> None:
                 return
             if not saving:  # nowhere to write the machine code
                 dispatcher._cache.disable()
-            if not _STATE["said"]:
-                _STATE["said"] = True
-                notice("compiling numerical kernels for their first use on this machine "
-                       "(once; `olsbayes compile` does it ahead of time) ...")
+            say_compiling(time.monotonic())
 
         def on_end(self, ev) -> None:
-            pass
+            _STATE["ended"] = time.monotonic()
 
     event.register("numba:compile", CompileNotice())
+
+
+def say_compiling(now: float) -> None:
+    """The compile notice, as a package kernel starts compiling at ``now`` (monotonic s).
+
+    The first compile of a process prints one line.  Later ones print one more
+    ("compiling more ...") when they start a new burst of compiling -- more than
+    :data:`BURST_GAP` s after the last compile ended -- at least :data:`AGAIN_AFTER` s
+    after the last line: the first line may be far up the screen by then, and the call
+    now compiling would otherwise run for seconds without a word.  None after
+    :func:`announced`.
+    """
+    if not _STATE["said"]:
+        notice("compiling numerical kernels for their first use on this machine "
+               "(once; `olsbayes compile` does it ahead of time) ...")
+    elif (_STATE["again"] and now - _STATE["said_at"] > AGAIN_AFTER
+          and now - _STATE["ended"] > BURST_GAP):
+        notice("compiling more numerical kernels for their first use ...")
+    else:
+        return
+    _STATE.update(said=True, said_at=now)
 
 
 def announced() -> None:
     """Say no more about compiling in this process (the caller has said it)."""
     prepare()
-    _STATE["said"] = True
+    _STATE.update(said=True, again=False)
 
 
 def cache_location() -> tuple[str, str | None]:

@@ -153,3 +153,28 @@ def test_package_kernels_are_stamped_with_every_kernel_module():
     assert isinstance(stamp, tuple) and stamp[1] == jit.kernels_stamp()
     files = {p.name for p in (Path(jit.__file__).parent / "ml" / "_numba").glob("*.py")}
     assert {"lm.py", "model.py", "fit.py"} <= files
+
+
+def test_a_later_burst_of_compiling_says_so_again(monkeypatch, capsys):
+    """The first compile prints one line; a compile starting a new burst (after a
+    pause) at least AGAIN_AFTER s after the last line prints one more; compiles in a
+    burst, soon after a line, or after announced() print nothing."""
+    state = {"how": "NUMBA_CACHE_DIR", "folder": "x", "said": False, "again": True,
+             "said_at": -float("inf"), "ended": -float("inf")}
+    monkeypatch.setattr(jit, "_STATE", state)
+    gap, again = jit.BURST_GAP, jit.AGAIN_AFTER
+
+    def compile_at(start, end):
+        jit.say_compiling(start)
+        state["ended"] = end
+        return capsys.readouterr().err
+
+    assert compile_at(0.0, 1.0).startswith("olsbayes: compiling numerical kernels for their "
+                                           "first use")
+    assert compile_at(1.0 + gap / 2, 30.0) == ""  # the same burst
+    assert compile_at(30.0 + 2 * gap, 31.0) == "olsbayes: compiling more numerical kernels " \
+                                                "for their first use ...\n"
+    assert compile_at(31.0 + 2 * gap, 32.0) == ""  # a new burst, but the line is recent
+    assert compile_at(30.0 + 2 * gap + again + 1.0, 50.0) != ""
+    jit.announced()  # the caller (olsbayes compile) has said it: no more lines
+    assert compile_at(100.0, 101.0) == ""
