@@ -30,7 +30,14 @@ def rng(request) -> np.random.Generator:
 
 @pytest.fixture(scope="session", autouse=True)
 def _compiled_kernels() -> None:
-    """Compile (or load from numba's cache) every kernel once, before the first test."""
+    """Compile (or load from numba's cache) every kernel once, before the first test.
+
+    Then no further compile line: a kernel outside the warm-up that a test compiles
+    (with an empty cache) says nothing, so a test's stderr does not depend on which
+    kernels its worker had met before, nor on the clock.
+    """
+    from olsbayes._jit import announced
     from olsbayes.ml.warmup import compile_kernels
 
     compile_kernels()
+    announced()
