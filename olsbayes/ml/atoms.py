@@ -22,7 +22,8 @@ from ..sensitivity import is_clipped_cosine
 
 __all__ = ["default_grid", "default_grid_size", "cached_default_grid", "check_grid",
            "check_atom_memory", "atoms", "grid_step", "NEIGHBOUR", "RING_ATOMS_MAX",
-           "SPHERE_ATOMS", "GRAM_ATOMS", "ARC_GRAM_SENSORS", "NOTICE_ENTRIES", "NOTICE_GRAM"]
+           "gram_from_arcs", "SPHERE_ATOMS", "GRAM_ATOMS", "ARC_GRAM_SENSORS", "NOTICE_ENTRIES",
+           "NOTICE_GRAM"]
 
 #: Normalised-atom correlation above which two atoms count as one basin (the
 #: neighbourhood of an atom in the searches of the fast fit).
@@ -179,10 +180,20 @@ def _setup_is_long(m: int, n: int, product: bool = True) -> bool:
     return m * n > NOTICE_ENTRIES or gram
 
 
+def gram_from_arcs(ring_arcs: bool, n_sensors: int) -> bool:
+    """Whether the fast search takes its atoms' Gram matrix from their arcs.
+
+    ``ring_arcs``: the atoms are a clipped-cosine ring's, each lighting one arc of
+    sub-sensors; then beyond :data:`ARC_GRAM_SENSORS` sub-sensors.  The one rule for
+    the search (:mod:`olsbayes.ml.fast.search`) and for its set-up notice here.
+    """
+    return ring_arcs and n_sensors > ARC_GRAM_SENSORS
+
+
 def _gram_by_product(model: Model) -> bool:
     """Whether the fast search forms this model's atoms' Gram matrix as ``G @ G.T``."""
-    arcs = model.kind == "angle" and is_clipped_cosine(model.sensitivity)
-    return not (arcs and model.n_sensors > ARC_GRAM_SENSORS)
+    ring = model.kind == "angle" and is_clipped_cosine(model.sensitivity)
+    return not gram_from_arcs(ring, model.n_sensors)
 
 
 def _responses(model: Model, grid: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import olsbayes as ob
+from olsbayes.ml import atoms as atoms_module
 from olsbayes.ml import fit_ml
 from olsbayes.ml._numba.search import _arc_correlations, arc_gram
 from olsbayes.ml.atoms import atoms, cached_default_grid
@@ -132,7 +133,7 @@ def test_large_rings_fit_through_the_arcs_gram(monkeypatch):
                               rng=k, size=20)
         by_arcs = fit_ml(model, data, k, warn=False)
         with monkeypatch.context() as mp:
-            mp.setattr(search, "ARC_GRAM_SENSORS", 10**9)
+            mp.setattr(atoms_module, "ARC_GRAM_SENSORS", 10**9)
             by_product = fit_ml(model, data, k, warn=False)
         np.testing.assert_allclose(by_arcs.log_likelihood, by_product.log_likelihood,
                                    rtol=0, atol=1e-8)

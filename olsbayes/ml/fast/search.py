@@ -25,7 +25,7 @@ import numpy as np
 from ...geometry import lonlat_to_unit
 from ...model import Model
 from ...sensitivity import is_clipped_cosine
-from ..atoms import ARC_GRAM_SENSORS, GRAM_ATOMS, NEIGHBOUR
+from ..atoms import GRAM_ATOMS, NEIGHBOUR, gram_from_arcs
 from .options import FastOptions
 from .tuples import TuplePlan, tuple_plans
 
@@ -94,7 +94,7 @@ def _atom_views(g: np.ndarray, arcs: tuple | None = None) -> tuple[np.ndarray, .
     from .._numba import search as sk
 
     m, n = g.shape
-    by_arcs = arcs is not None and arcs[3].size > 0 and n > ARC_GRAM_SENSORS
+    by_arcs = gram_from_arcs(arcs is not None and arcs[3].size > 0, n)
 
     def make(a: np.ndarray) -> tuple[np.ndarray, ...]:
         gnorm2 = np.einsum("mn,mn->m", a, a)
