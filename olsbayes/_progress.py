@@ -4,13 +4,16 @@ Every call of the package that can run longer than a few seconds -- the posterio
 sampler, nested sampling, importance sampling inside ``select_k``, the imaging
 samplers, studies -- takes ``progress`` (True by default; the command line's
 ``--quiet`` turns it off) and reports through :func:`progress_bar`.  A bar appears
-only after :data:`DELAY` seconds, so quick calls print nothing.
+only after :data:`DELAY` seconds, so quick calls print nothing; it appears then
+even if nothing was counted yet, so a call's set-up and its last assembly, inside
+the bar's ``with`` block, are not silent either.
 """
 
 from __future__ import annotations
 
 import functools
 import sys
+import threading
 from typing import Any
 
 __all__ = ["progress_bar", "DELAY"]
@@ -49,15 +52,42 @@ def _bar_class() -> type:
     tqdm's ``set_postfix_str`` and ``set_description`` redraw the bar at once, so a
     call that finished in a fraction of a second but set a status printed a bar all
     the same; here a redraw before ``start_t + delay`` is skipped (the next one after
-    it shows the latest status).
+    it shows the latest status).  tqdm draws a delayed bar only on an update after
+    the delay, so a bar whose counts have not moved (a call still setting up, or
+    assembling its result after the last count) would stay hidden however long it
+    lasts; here a timer thread draws it once the delay has passed, unless the bar
+    was closed first.
     """
     from tqdm import tqdm
 
     class _DelayedBar(tqdm):
+        def __init__(self, *args: Any, **kwargs: Any):
+            self._woken = threading.Lock()  # held while the timer draws, and by close()
+            self._wake = None
+            super().__init__(*args, **kwargs)
+            if not self.disable and self.delay > 0:
+                # a little after the delay, so that refresh() below does not skip it
+                self._wake = threading.Timer(self.delay + 0.05, self._draw)
+                self._wake.daemon = True
+                self._wake.start()
+
+        def _draw(self) -> None:
+            with self._woken:
+                if not self.disable:
+                    self.refresh()
+
         def refresh(self, nolock: bool = False, lock_args: Any = None) -> Any:
             start = getattr(self, "start_t", None)  # None: disabled, or still in __init__
             if start is not None and self._time() < start + self.delay:
                 return False
             return super().refresh(nolock=nolock, lock_args=lock_args)
+
+        def close(self) -> None:
+            if self._wake is not None:
+                self._wake.cancel()
+                with self._woken:  # a draw under way ends before the bar is cleared
+                    super().close()
+                return
+            super().close()
 
     return _DelayedBar

@@ -28,6 +28,7 @@ Example:
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -371,12 +372,12 @@ def run(args: argparse.Namespace) -> int:
         blocks = [fit_line + fit_text(model, result, truth, unit=unit)]
         if general and extra_text(result):
             blocks.append(extra_text(result))
-    head = (f"{model!r}\nML fit ({result.method}) of K = {k} source(s); sd = Fisher "
-            "(CRLB) at the estimate; locations in "
-            + (unit if model.kind != "position" else "length units")
-            + f"\nseed {seed}" + (" (drawn; recorded in the JSON and the report)"
-                                  if args.seed is None else ""))
+    blocks.insert(0, _head(model, result.method, k, unit, seed, drawn=args.seed is None))
     if want_posterior:
+        if not args.json:  # the ML table now, not after the sampling
+            emit(args, payload, "\n".join(blocks))
+            sys.stdout.flush()
+            blocks = []
         request = PosteriorRequest(
             priors=prior_from_config(cfg, model, k, data, frames),
             options=sampler_options_from_config(cfg, args.max_steps), frames=frames,
@@ -387,8 +388,16 @@ def run(args: argparse.Namespace) -> int:
                                                      ml=result, unit=unit,
                                                      progress=not args.quiet)
         blocks.append(text)
-    emit(args, payload, "\n".join([head, *blocks]))
+    emit(args, payload, "\n".join(blocks))
     return 0
+
+
+def _head(model: Model, method: str, k: int, unit: str, seed: int, drawn: bool) -> str:
+    """The lines above the ML table: the model, the fit and the seed."""
+    return (f"{model!r}\nML fit ({method}) of K = {k} source(s); sd = Fisher (CRLB) at the "
+            "estimate; locations in " + (unit if model.kind != "position" else "length units")
+            + f"\nseed {seed}" + (" (drawn; recorded in the JSON and the report)" if drawn
+                                  else ""))
 
 
 def _chi2_words(payload: dict[str, Any], n: int) -> str:

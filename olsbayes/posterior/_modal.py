@@ -14,7 +14,7 @@ from ..errors import InputError
 from ..ml import MLResult
 from ._assemble import MAX_STORED_DRAWS, _kept_steps, assemble
 from ._logpost import LogPosterior, cut_shift
-from ._run import make_sampler, run_ensemble
+from ._run import make_sampler, posterior_bar, run_ensemble
 from ._start import start_coordinates
 from .modes import ModeReport, find_modes
 from .multimodal import (
@@ -70,7 +70,8 @@ def _run_modes(logpost: LogPosterior, walkers: list[np.ndarray], options, gen,
     samplers, converged = [], True
     for w in walkers:
         sampler = make_sampler(logpost, w.shape[0], options, gen)
-        ok = run_ensemble(sampler, start_coordinates(logpost, w), logpost, options, progress)
+        with posterior_bar(progress, options) as bar:
+            ok = run_ensemble(sampler, start_coordinates(logpost, w), logpost, options, bar)
         if options.n_steps is not None:
             tau = np.max(sampler.get_autocorr_time(tol=0))
             ok = bool(options.n_steps >= options.tau_multiple * tau)

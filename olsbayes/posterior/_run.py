@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
@@ -14,7 +15,7 @@ from ._logpost import LogPosterior
 from ._rhat import RhatCheck
 from .options import SamplerOptions, emcee_moves
 
-__all__ = ["make_sampler", "run_ensemble", "AutocorrTime"]
+__all__ = ["make_sampler", "posterior_bar", "run_ensemble", "AutocorrTime"]
 
 
 def make_sampler(logpost: LogPosterior, n_walkers: int, options: SamplerOptions,
@@ -30,6 +31,17 @@ def make_sampler(logpost: LogPosterior, n_walkers: int, options: SamplerOptions,
     seed = int(gen.integers(2**32))
     sampler.random_state = np.random.RandomState(seed).get_state()
     return sampler
+
+
+def posterior_bar(enabled: bool, options: SamplerOptions) -> Any:
+    """The status line of one ensemble run: steps taken (of ``n_steps`` when fixed).
+
+    Made by the caller of :func:`run_ensemble`, so that it spans the run's set-up and
+    the assembly of its draws as well as the steps: a call that lasts shows it after
+    :data:`~olsbayes._progress.DELAY` seconds whichever part is running.
+    """
+    return progress_bar(enabled=enabled, desc="posterior", unit=" steps",
+                        total=options.n_steps)
 
 
 @functools.cache
@@ -77,7 +89,7 @@ def _vector_sampler_class() -> type:
 
 
 def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: SamplerOptions,
-                 progress: bool, checkpoint: ChainCheckpoint | None = None,
+                 bar: Any, checkpoint: ChainCheckpoint | None = None,
                  seed: int | None = None) -> bool:
     """Step from ``z0`` (W, P); True if the convergence criteria held before the limit.
 
@@ -88,7 +100,7 @@ def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: Sample
     holds it is checked at steps growing by 25 % at least.  With ``n_steps`` the
     run takes exactly that many steps and returns False.
 
-    ``progress``: a status line on stderr with the steps taken and the stopping
+    ``bar`` (:func:`posterior_bar`) counts the steps taken and shows the stopping
     rule's state (tau and the steps it asks for, the last R-hat against its bound).
     ``checkpoint``: steps already stored there are loaded first (their convergence
     checks replayed) and the run continues from the last one; the file is written
@@ -107,25 +119,23 @@ def run_ensemble(sampler, z0: np.ndarray, logpost: LogPosterior, options: Sample
     import emcee
 
     sampler.lean_state = checkpoint is None  # only a checkpoint reads the per-step state
-    total = options.n_steps if watch.fixed else None
-    with progress_bar(enabled=progress, desc="posterior", unit=" steps", total=total,
-                      initial=done) as bar:
-        try:
-            for _ in sampler.sample(emcee.State(start), progress=False,
-                                    iterations=max(options.step_limit - done, 0)):
-                bar.update(1)
-                if checkpoint is not None:
-                    checkpoint.seen(sampler, seed)
-                it = sampler.iteration
-                if watch.fixed or it % options.check_every:
-                    continue
-                stop = watch.check(it)
-                bar.set_postfix_str(watch.status, refresh=False)
-                if stop:
-                    return True
-        finally:
+    bar.initial = bar.n = bar.last_print_n = done  # steps loaded: not in the rate
+    try:
+        for _ in sampler.sample(emcee.State(start), progress=False,
+                                iterations=max(options.step_limit - done, 0)):
+            bar.update(1)
             if checkpoint is not None:
-                checkpoint.write(sampler, seed)
+                checkpoint.seen(sampler, seed)
+            it = sampler.iteration
+            if watch.fixed or it % options.check_every:
+                continue
+            stop = watch.check(it)
+            bar.set_postfix_str(watch.status, refresh=False)
+            if stop:
+                return True
+    finally:
+        if checkpoint is not None:
+            checkpoint.write(sampler, seed)
     return False
 
 

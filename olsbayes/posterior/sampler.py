@@ -33,7 +33,7 @@ from ._checkpoint import ChainCheckpoint, problem_key
 from ._general import check_prior_extras
 from ._logpost import LogPosterior, cut_shift
 from ._modal import check_multimodal_start, mode_plan, sample_modes
-from ._run import make_sampler, run_ensemble
+from ._run import make_sampler, posterior_bar, run_ensemble
 from ._start import check_start, initial_walkers, start_coordinates
 from .audit import narrower_than_crlb
 from .modes import find_modes
@@ -235,14 +235,16 @@ class _Run:
         """One ensemble from ``walkers`` (W, P): (result fields, converged, calls)."""
         options = self.options
         _, gen_mc, gen_prior = self.gens
-        logpost = LogPosterior(self.model, self.data, self.prior, cut_shift(self.prior, walkers),
-                               options.use_likelihood, self.frames)
-        z0 = start_coordinates(logpost, walkers)
-        sampler = make_sampler(logpost, self.n_walkers, options, gen_mc)
-        converged = run_ensemble(sampler, z0, logpost, options, self.progress, self.ckpt,
-                                 self.seed)
-        fields = assemble(self.model, self.data, logpost, sampler, centre, options, gen_prior,
-                          self.record)
+        with posterior_bar(self.progress, options) as bar:  # set-up, steps and assembly
+            logpost = LogPosterior(self.model, self.data, self.prior,
+                                   cut_shift(self.prior, walkers), options.use_likelihood,
+                                   self.frames)
+            z0 = start_coordinates(logpost, walkers)
+            sampler = make_sampler(logpost, self.n_walkers, options, gen_mc)
+            converged = run_ensemble(sampler, z0, logpost, options, bar, self.ckpt, self.seed)
+            bar.set_postfix_str("assembling the draws")
+            fields = assemble(self.model, self.data, logpost, sampler, centre, options,
+                              gen_prior, self.record)
         if options.n_steps is not None:
             converged = bool(options.n_steps >= options.tau_multiple * np.max(fields["tau"]))
         return fields, converged, logpost.n_calls

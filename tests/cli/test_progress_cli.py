@@ -100,3 +100,32 @@ def test_study_quiet_silences_status_lines_too(tmp_path, capsys, monkeypatch):
         assert ("connecting to the Dask scheduler" in err) is said, (flags, err)
         assert "cannot reach the Dask scheduler" in err
     assert not (tmp_path / "s.nc").exists()
+
+
+def test_fit_prints_the_ml_table_before_sampling(capsys, monkeypatch):
+    """`fit --posterior` shows the ML table as soon as it is fitted (a run whose
+    sampling fails has shown it); the JSON object still comes whole at the end."""
+    import olsbayes.posterior
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("stop before the posterior")
+
+    monkeypatch.setattr(olsbayes.posterior, "sample", fail)
+    argv = ["fit", "--posterior", "--seed", "1", "--set", "sensor.n=12"]
+    with pytest.raises(RuntimeError, match="stop before the posterior"):
+        main(argv)
+    assert "ML fit (fast) of K = 2" in capsys.readouterr().out
+    with pytest.raises(RuntimeError, match="stop before the posterior"):
+        main(argv + ["--json"])
+    assert capsys.readouterr().out == ""
+
+
+def test_fit_posterior_text_is_the_same_printed_in_two_parts(capsys):
+    """The ML table printed before the sampling, the posterior after: the same text as
+    one block, a blank line between them."""
+    argv = ["fit", "--posterior", "--seed", "1", "--set", "sensor.n=12", "--max-steps", "300"]
+    assert main(argv + ["--quiet"]) == 0
+    out = capsys.readouterr().out
+    ml, post = out.split("\n\nPosterior (emcee, 300 steps")
+    assert ml.startswith("Model(Ring(n=12") and "Truth and error / sd:" in ml
+    assert post.count("\n") >= 4 and "Model check" in post and "\n\n" not in post
