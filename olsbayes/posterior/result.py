@@ -46,7 +46,8 @@ class PosteriorResult:
         name the inference library and versions and hold the provenance
         (:mod:`olsbayes._provenance`).  The two per-reading groups,
         ``posterior_predictive`` and ``log_likelihood``, hold every draw up to
-        2^25 numbers each (walkers x draws x sub-sensors), else every s-th draw:
+        ``olsbayes.posterior._assemble.READING_FLOATS`` numbers each (walkers x
+        draws x sub-sensors), else every s-th draw:
         their ``draw`` labels are the posterior's, s is the attribute
         ``reading_stride`` (1 when they hold every draw).
     model : Model
