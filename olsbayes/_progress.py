@@ -85,9 +85,7 @@ def _bar_class() -> type:
         def close(self) -> None:
             if self._wake is not None:
                 self._wake.cancel()
-                with self._woken:  # a draw under way ends before the bar is cleared
-                    super().close()
-                return
-            super().close()
+            with self._woken:  # a draw under way ends before the bar is cleared
+                super().close()
 
     return _DelayedBar
