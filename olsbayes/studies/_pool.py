@@ -20,7 +20,33 @@ from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["LocalPool", "PoolFuture", "forkserver_context"]
+__all__ = ["LocalPool", "PoolFuture", "forkserver_context", "submit_safely"]
+
+
+class _CancelSafeFuture(cf.Future):
+    """A process-pool future that may be cancelled while its pool breaks.
+
+    When a worker dies, Python 3.11's pool fails every pending future from its
+    manager thread; on one the caller cancelled meanwhile, ``set_exception``
+    raises ``InvalidStateError``, which ends that thread before the remaining
+    futures are failed: they then never finish, and a wait on them never
+    returns.  Python 3.12 ignores the error there (CPython gh-107219); this
+    class does the same for the futures of the study's pool, on any version.
+    """
+
+    def set_exception(self, exception: BaseException | None) -> None:
+        try:
+            super().set_exception(exception)
+        except cf.InvalidStateError:
+            if not self.cancelled():
+                raise
+
+
+def submit_safely(pool: cf.ProcessPoolExecutor, fn: Callable, *args: Any) -> cf.Future:
+    """``pool.submit(fn, *args)``, its future safe to cancel while the pool breaks."""
+    fut = pool.submit(fn, *args)
+    fut.__class__ = _CancelSafeFuture  # a subclass adding no state: the object is unchanged
+    return fut
 
 
 class PoolFuture:
@@ -58,7 +84,7 @@ class PoolFuture:
             if self.inner is None and not self._claimed and self._outcome is None:
                 fn, args = self._call
                 try:
-                    self.inner = pool.submit(fn, *args)
+                    self.inner = submit_safely(pool, fn, *args)
                 except cf.process.BrokenProcessPool as exc:  # settled: result() says why
                     self._outcome = (False, _broken(exc))
 
@@ -147,7 +173,7 @@ class LocalPool:
         if delay > 0 and self._closed.wait(delay):
             return  # nothing was handed over: no one waits for ready
         try:
-            self.pool.submit(os.getpid).result()
+            submit_safely(self.pool, os.getpid).result()
         except BaseException:  # noqa: BLE001 - a broken pool reports through the calls
             pass
         with self._lock:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import functools
 import importlib.util
 import os
 import threading
@@ -30,7 +31,7 @@ from typing import Any
 from .._notice import notice
 from .._validation import _short, integer
 from ..errors import InputError
-from ._pool import LocalPool, forkserver_context
+from ._pool import LocalPool, forkserver_context, submit_safely
 from ._script import unguarded_call
 
 __all__ = ["Backend", "make_backend", "check_script_guard", "EXECUTORS", "POOL_START_DELAY"]
@@ -300,6 +301,8 @@ def make_backend(executor: object = "processes", *, workers: int | None = None,
         return _dask_backend(executor, None)
     if callable(getattr(executor, "submit", None)):
         n = getattr(executor, "_max_workers", None) or _local_workers(workers)
-        return Backend("executor", n, executor.submit, "any")
+        submit = (functools.partial(submit_safely, executor)
+                  if isinstance(executor, cf.ProcessPoolExecutor) else executor.submit)
+        return Backend("executor", n, submit, "any")
     raise InputError(f"executor must be one of {EXECUTORS}, a distributed.Client or an object "
                      f"with a submit() method; got {_short(executor)}")

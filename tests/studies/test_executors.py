@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -67,6 +68,27 @@ def test_the_pool_takes_the_queued_calls_as_soon_as_it_runs():
     finally:
         pool.close()
         gate.set()
+
+
+def test_a_pool_that_breaks_fails_every_call_not_cancelled():
+    # a worker killed while calls wait, some of them cancelled: each other call fails
+    # with BrokenProcessPool.  (Python 3.11's own futures would end the pool's manager
+    # thread at the first cancelled one, leaving those after it pending for ever.)
+    from olsbayes.studies._pool import forkserver_context, submit_safely
+
+    pool = cf.ProcessPoolExecutor(max_workers=1, mp_context=forkserver_context())
+    try:
+        pid = submit_safely(pool, os.getpid).result(timeout=60)
+        calls = [submit_safely(pool, time.sleep, 60) for _ in range(12)]
+        cancelled = [f for f in calls[::2] if f.cancel()]  # all but the one running
+        assert len(cancelled) >= 4
+        os.kill(pid, signal.SIGKILL)
+        rest = [f for f in calls if not f.cancelled()]
+        done, left = cf.wait(rest, timeout=30)
+        assert not left and all(isinstance(f.exception(), cf.process.BrokenProcessPool)
+                                for f in done)
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _pools(monkeypatch, delay: float) -> list:
