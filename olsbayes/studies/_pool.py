@@ -45,7 +45,8 @@ class _CancelSafeFuture(cf.Future):
 def submit_safely(pool: cf.ProcessPoolExecutor, fn: Callable, *args: Any) -> cf.Future:
     """``pool.submit(fn, *args)``, its future safe to cancel while the pool breaks."""
     fut = pool.submit(fn, *args)
-    fut.__class__ = _CancelSafeFuture  # a subclass adding no state: the object is unchanged
+    if type(fut) is cf.Future:  # another pool's own future class is left as it is
+        fut.__class__ = _CancelSafeFuture  # a subclass adding no state: the object is unchanged
     return fut
 
 
