@@ -91,6 +91,16 @@ def test_a_pool_that_breaks_fails_every_call_not_cancelled():
         pool.shutdown(wait=False, cancel_futures=True)
 
 
+def test_a_users_process_pool_runs_the_study_and_is_left_open():
+    from olsbayes.studies._pool import forkserver_context
+
+    with cf.ProcessPoolExecutor(max_workers=2, mp_context=forkserver_context()) as pool:
+        theirs = run_study(noise_check, GRID, 6, executor=pool, rng=3, progress=False)
+        assert pool.submit(os.getpid).result(timeout=60) != os.getpid()  # still usable
+    assert theirs.identical(run_study(noise_check, GRID, 6, executor="serial", rng=3,
+                                      progress=False))
+
+
 def _pools(monkeypatch, delay: float) -> list:
     """Set the study's pool start delay; per process pool made from now on, the calls
     handed to it (the first: the start's ``os.getpid``)."""
