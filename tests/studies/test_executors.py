@@ -222,6 +222,8 @@ def test_local_dask_cluster_runs_with_quiet_housekeeping_timers_only_there():
     # and scheduler; the calling process's own Dask settings are left as they were
     import dask
 
+    pytest.importorskip("distributed")  # its settings join dask.config when imported
+
     from olsbayes.studies.executors import make_backend
 
     before = dask.config.get("distributed.worker.profile.enabled")
